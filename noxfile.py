@@ -1,0 +1,166 @@
+"""Test, lint and demo sessions for the DaX monorepo.
+
+`nox` runs the default sessions (lint, each package alone, the combinations, the
+cross-package tests); `nox -s demo` runs the physics demo; `nox -l` lists them all.
+Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
+
+Each package session installs only that package and the siblings it declares, so a
+package's tests pass with nothing more than its own dependencies (DESIGN.md section 1).
+The sibling packages are not on any index: they are always installed from packages/.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import nox
+
+nox.options.default_venv_backend = "uv"
+nox.options.error_on_external_run = True
+nox.options.sessions = [
+    "lint",
+    "physics",
+    "tasks",
+    "data",
+    "algos",
+    "combos",
+    "integration",
+]
+
+ROOT = Path(__file__).resolve().parent
+
+# Each package with the sibling packages it declares, lowest layer first.
+SIBLINGS: dict[str, list[str]] = {
+    "dax-physics": [],
+    "dax-tasks": ["dax-physics"],
+    "dax-data": ["dax-tasks", "dax-physics"],
+    "dax-algos": ["dax-data", "dax-tasks", "dax-physics"],
+}
+LAYERS = list(SIBLINGS)
+
+# Heavy dependencies that belong to higher layers; dax-physics must not pull them in.
+NOT_IN_PHYSICS = ["gymnasium", "h5py", "flax", "optax"]
+
+# A persistent XLA compilation cache outside the repo, shared by every session, so
+# repeated runs do not recompile the same programs. XLA_FLAGS is left as it is.
+_cache_home = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+PYTEST_ENV = {
+    "JAX_COMPILATION_CACHE_DIR": os.environ.get(
+        "JAX_COMPILATION_CACHE_DIR", str(_cache_home / "dax" / "jax")
+    ),
+    "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0.5",
+}
+
+
+def _module(dist: str) -> str:
+    return dist.replace("-", "_")
+
+
+def _install_local(
+    session: nox.Session, dists: list[str], extras: dict[str, str] | None = None
+) -> None:
+    """Install the given packages from packages/; `extras` maps a package to its extra.
+
+    `--reinstall-package` makes uv rebuild each local package from the current source
+    tree every time instead of trusting an earlier build; nox's documentation warns
+    that uv may not reinstall local packages in a reused environment (`nox -r`).
+    """
+    extras = extras or {}
+    targets = [
+        str(ROOT / "packages" / d) + (f"[{extras[d]}]" if d in extras else "") for d in dists
+    ]
+    reinstall = [arg for d in dists for arg in ("--reinstall-package", d)]
+    session.install(*reinstall, *targets)
+
+
+def _assert_not_importable(session: nox.Session, modules: list[str]) -> None:
+    """Fail the session if any of `modules` can be imported in its environment."""
+    if not modules:
+        return
+    code = (
+        f"import importlib.util as u, sys; m = {modules!r}; "
+        "f = [x for x in m if u.find_spec(x)]; "
+        "sys.exit(f'expected none of {m} to be importable, got {f}') if f "
+        "else print('not importable, as expected:', *m)"
+    )
+    session.run("python", "-c", code)
+
+
+def _assert_importable(session: nox.Session, modules: list[str]) -> None:
+    code = "import " + ", ".join(modules) + f"; print('imported: {', '.join(modules)}')"
+    session.run("python", "-c", code)
+
+
+def _pytest(session: nox.Session, *paths: str) -> None:
+    session.run("pytest", *paths, *session.posargs, env=PYTEST_ENV)
+
+
+def _package_session(session: nox.Session, dist: str) -> None:
+    """Install `dist` with its test extra and its siblings (without theirs); run its tests."""
+    _install_local(session, [dist, *SIBLINGS[dist]], extras={dist: "test"})
+    higher = [_module(d) for d in LAYERS[LAYERS.index(dist) + 1 :]]
+    forbidden = higher + (NOT_IN_PHYSICS if dist == "dax-physics" else [])
+    _assert_not_importable(session, forbidden)
+    _pytest(session, f"packages/{dist}/tests")
+
+
+@nox.session
+def physics(session: nox.Session) -> None:
+    """dax-physics alone; checks that no higher layer's dependencies came with it."""
+    _package_session(session, "dax-physics")
+
+
+@nox.session
+def tasks(session: nox.Session) -> None:
+    """dax-tasks with dax-physics."""
+    _package_session(session, "dax-tasks")
+
+
+@nox.session
+def data(session: nox.Session) -> None:
+    """dax-data with dax-tasks and dax-physics."""
+    _package_session(session, "dax-data")
+
+
+@nox.session
+def algos(session: nox.Session) -> None:
+    """dax-algos with all its siblings."""
+    _package_session(session, "dax-algos")
+
+
+@nox.session
+@nox.parametrize(
+    "combo",
+    [LAYERS[:2], LAYERS[:3], LAYERS[:4]],
+    ids=["physics+tasks", "physics+tasks+data", "all"],
+)
+def combos(session: nox.Session, combo: list[str]) -> None:
+    """Install a combination (no test extras); check dependencies and imports."""
+    _install_local(session, combo)
+    session.run("uv", "pip", "check")
+    _assert_importable(session, [_module(d) for d in combo])
+    _assert_not_importable(session, [_module(d) for d in LAYERS if d not in combo])
+
+
+@nox.session
+def integration(session: nox.Session) -> None:
+    """All four packages together; runs the cross-package tests in tests/."""
+    _install_local(session, LAYERS, extras={d: "test" for d in LAYERS})
+    _pytest(session, "tests")
+
+
+@nox.session
+def lint(session: nox.Session) -> None:
+    """ruff over the whole repository, configured by ruff.toml."""
+    session.install("ruff==0.17.6")
+    session.run("ruff", "check", ".", *session.posargs)
+
+
+@nox.session
+def demo(session: nox.Session) -> None:
+    """The physics demo: prints its figures as JSON and writes a picture to demo_out/."""
+    _install_local(session, ["dax-physics"], extras={"dax-physics": "plot"})
+    session.run(
+        "python", "-m", "dax_physics.demo", "--out", "demo_out", *session.posargs, env=PYTEST_ENV
+    )

@@ -1,0 +1,13 @@
+"""Scripted experts, goal sets and demonstration files for the DaX tasks.
+
+This release holds only the package skeleton; see README.md for what is planned.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__: str = version("dax-data")
+except PackageNotFoundError:  # imported from a source tree that was never installed
+    __version__ = "0+unknown"
+
+__all__ = ["__version__"]
