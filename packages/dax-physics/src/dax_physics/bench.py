@@ -1,0 +1,386 @@
+"""Benchmarks of dax-physics. Each subcommand prints one JSON line (speed is measured here,
+never asserted in tests).
+
+    python -m dax_physics.bench mpm-block --material fluid --grid 32 --particles 8192 \\
+        --substeps 100 --json
+    python -m dax_physics.bench mpm-grad --substeps 100 --checkpoint-segments 10 --json
+    python -m dax_physics.bench active-region --json
+    python -m dax_physics.bench mpm-study --out bench_out --json
+    python -m dax_physics.bench cloth-drop --n 64 --substeps 1000 --json
+
+Throughputs are medians over repetitions after a warm-up run; compile time is measured by
+lowering and compiling ahead of time. Set ``JAX_COMPILATION_CACHE_DIR`` off (the default)
+to see cold compile times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import mpm, sampling
+from .materials import Material
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _median_time(fn, reps: int, min_time: float):
+    """Median wall time [s] of ``fn()`` over at least ``reps`` calls and ``min_time`` s."""
+    times = []
+    start = time.perf_counter()
+    while len(times) < reps or time.perf_counter() - start < min_time:
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+        if len(times) >= 50:
+            break
+    return float(np.median(times)), times
+
+
+def _emit(record: dict, as_json: bool):
+    if as_json:
+        print(json.dumps(record), flush=True)
+    else:
+        for k, v in record.items():
+            print(f"{k:>24}: {v}")
+
+
+# --------------------------------------------------------------------------- block drop
+
+def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32):
+    """The peers' MPM block-drop scene (shared/bench/peers, common.py: MPMParams), z up.
+
+    Domain [0, 1]^3 on grid^3 cells, N uniformly random particles from
+    ``numpy.random.default_rng(0).random((N, 3), float32)`` in the cube of side 0.4 at
+    (0.30, 0.15, 0.30) in the reference's (x, up, z) order, mapped to (x, z_ref, up) here;
+    initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; slip walls
+    3 cells thick; gravity 9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa; elastic:
+    fixed-corotated with E = 5e3 Pa, nu = 0.2.
+    """
+    rng = np.random.default_rng(0)
+    lo = np.array([0.30, 0.15, 0.30], np.float32)
+    x_ref = (lo + np.float32(0.4) * rng.random((particles, 3), dtype=np.float32)).astype(
+        np.float32)
+    x = x_ref[:, [0, 2, 1]]  # (x, up, z) -> (x, y, z) with z up
+    v = np.tile(np.array([0.0, 0.0, -2.0], np.float32), (particles, 1))
+    if material == "fluid":
+        mat = Material("fluid", 1.0, bulk_modulus=400.0)
+    elif material == "elastic":
+        mat = Material("elastic", 1.0, youngs_modulus=5.0e3, poisson_ratio=0.2)
+    else:
+        raise ValueError(f"unknown block material {material!r}; valid: fluid, elastic")
+    cfg = mpm.MPMConfig(materials=(mat,), dx=1.0 / grid, dt=1e-4, domain=(grid,) * 3,
+                        gravity=(0.0, 0.0, -9.8), walls="slip", wall_cells=3, max_speed=2.0)
+    state = mpm.init_state(cfg, x, v, vol=0.4 ** 3 / particles, dtype=dtype)
+    return cfg, state
+
+
+def cmd_mpm_block(args):
+    cfg, state = block_drop_scene(args.material, args.grid, args.particles)
+    params = cfg.params
+    n = args.substeps
+    run = mpm.rollout
+    if args.batch:
+        state = jax.tree.map(lambda a: jnp.broadcast_to(a, (args.batch,) + a.shape), state)
+        run = jax.jit(jax.vmap(lambda p, s: mpm._rollout(cfg, p, s, n), in_axes=(None, 0)))
+        t0 = time.perf_counter()
+        compiled = run.lower(params, state).compile()
+    else:
+        t0 = time.perf_counter()
+        compiled = jax.jit(lambda p, s: mpm._rollout(cfg, p, s, n)).lower(params, state).compile()
+    compile_s = time.perf_counter() - t0
+    out = compiled(params, state)
+    jax.block_until_ready(out)
+
+    def go():
+        jax.block_until_ready(compiled(params, state))
+
+    med, times = _median_time(go, args.reps, args.min_time)
+    x = np.asarray(out.x)
+    scenes = max(args.batch, 1)
+    record = dict(
+        bench="mpm-block", material=args.material, grid=args.grid, particles=args.particles,
+        substeps=n, batch=args.batch, substeps_per_s=n / med,
+        scene_substeps_per_s=scenes * n / med,
+        particle_substeps_per_s=scenes * n * args.particles / med,
+        compile_s=compile_s, reps=len(times),
+        mean_position=x.reshape(-1, 3).astype(np.float64).mean(0).tolist(),
+        finite=bool(np.isfinite(x).all()), escaped=bool(np.asarray(out.escaped).any()),
+        backend=jax.default_backend(), jax=jax.__version__)
+    _emit(record, args.json)
+
+
+# --------------------------------------------------------------------------- gradient memory
+
+def cmd_mpm_grad(args):
+    cfg, state = block_drop_scene(args.material, args.grid, args.particles)
+    params = cfg.params
+    n = args.substeps
+    seg = None if args.checkpoint_segments <= 1 else n // args.checkpoint_segments
+    if seg is not None and n % args.checkpoint_segments:
+        raise SystemExit(f"--substeps {n} must be a multiple of --checkpoint-segments")
+
+    def loss(v0):
+        out = mpm._rollout(cfg, params, state.replace(v=v0), n, seg)
+        return jnp.mean(out.x[:, 2])
+
+    grad = jax.jit(jax.grad(loss))
+    rss0 = _peak_rss_mb()
+    t0 = time.perf_counter()
+    compiled = grad.lower(state.v).compile()
+    compile_s = time.perf_counter() - t0
+    mem = compiled.memory_analysis()
+    g = compiled(state.v)
+    jax.block_until_ready(g)
+    med, times = _median_time(lambda: jax.block_until_ready(compiled(state.v)), args.reps, 0.0)
+    record = dict(
+        bench="mpm-grad", material=args.material, grid=args.grid, particles=args.particles,
+        substeps=n, checkpoint_segments=args.checkpoint_segments, segment_length=seg,
+        grad_s=med, compile_s=compile_s, peak_rss_mb=_peak_rss_mb(),
+        peak_rss_before_mb=rss0,
+        xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2 ** 20,
+        grad_norm=float(jnp.linalg.norm(g)), finite=bool(jnp.all(jnp.isfinite(g))))
+    _emit(record, args.json)
+
+
+# --------------------------------------------------------------------------- active region
+
+def rope_scene(window, substeps_dt=1e-4, domain=128, with_colliders=True):
+    """An elastic rope lying on a table in a 1 m room of ``domain``^3 cells, spanning about
+    32 x 26 x 3 cells, with a capsule pusher moving into it (a Push-Rope scene);
+    ``window`` None for the full grid."""
+    from .colliders import ColliderSpec, ColliderState
+
+    dx = 1.0 / domain
+    table_z = 4.0 * dx
+    s = np.linspace(0.0, 1.0, 24)
+    pts = np.stack([0.40 + 0.22 * s,
+                    0.50 + 0.09 * np.sin(2 * np.pi * s),
+                    np.full_like(s, table_z + 0.0115)], axis=1)
+    x, vol = sampling.capsule_chain(pts, 0.011, dx, ppc=8, seed=0)
+    rope = Material("elastic", 1100.0, youngs_modulus=2.0e5, poisson_ratio=0.3)
+    specs, cstate = (), None
+    if with_colliders:
+        specs = (ColliderSpec("plane", (), mode="separate", friction=0.5),
+                 ColliderSpec("capsule", (0.01, 0.02), mode="separate", friction=0.3))
+        cstate = ColliderState.create(
+            [[0.0, 0.0, table_z], [0.51, 0.37, table_z + 0.035]],
+            lin_vel=[[0.0, 0.0, 0.0], [0.0, 0.3, 0.0]])
+    cfg = mpm.MPMConfig(materials=(rope,), dx=dx, dt=substeps_dt, domain=(domain,) * 3,
+                        window=window, gravity=(0.0, 0.0, -9.81), walls="slip",
+                        colliders=specs, max_speed=1.0)
+    return cfg, mpm.init_state(cfg, x, vol=vol, colliders=cstate)
+
+
+def cmd_active_region(args):
+    results = {}
+    finals = {}
+    extent = None
+    for name, window in (("window", tuple(args.window)), ("full", None)):
+        cfg, state = rope_scene(window, with_colliders=not args.no_colliders)
+        if extent is None:
+            ext = np.ptp(np.asarray(state.x), axis=0) / cfg.dx
+            extent = [round(float(e), 1) for e in ext]
+        params = cfg.params
+        t0 = time.perf_counter()
+        compiled = jax.jit(
+            lambda p, s, cfg=cfg: mpm._rollout(cfg, p, s, args.substeps)).lower(
+                params, state).compile()
+        compile_s = time.perf_counter() - t0
+        out = compiled(params, state)
+        jax.block_until_ready(out)
+        med, times = _median_time(
+            lambda c=compiled, p=params, s=state: jax.block_until_ready(c(p, s)), args.reps, 0.0)
+        finals[name] = np.asarray(out.x)
+        results[name] = dict(
+            grid_cells=list(cfg.window), substeps_per_s=args.substeps / med,
+            compile_s=compile_s, escaped=bool(out.escaped), finite=bool(out.finite))
+    record = dict(
+        bench="active-region", domain_cells=[128] * 3, colliders=not args.no_colliders,
+        rope_extent_cells=extent,
+        particles=int(finals["full"].shape[0]), substeps=args.substeps, **results,
+        speedup=results["window"]["substeps_per_s"] / results["full"]["substeps_per_s"],
+        max_abs_position_diff_m=float(np.max(np.abs(finals["window"] - finals["full"]))))
+    _emit(record, args.json)
+
+
+# --------------------------------------------------------------------------- speed vs accuracy
+
+def bar_mode_scene(cells_per_length: int, ppc: int, dt_fraction: float, length=0.2,
+                   youngs=1.0e5, density=1000.0, v0=0.05):
+    """A free-free elastic bar (nu = 0, so the 1D wave speed sqrt(E/rho) is exact) started in
+    its first longitudinal mode, v(x) = v0 cos(pi x / L): the end velocity reverses after a
+    quarter period T/4 = L / (2 c)."""
+    dx = length / cells_per_length
+    width = max(2 * dx, length / 8)
+    margin = 6 * dx
+    lo = np.array([margin, margin, margin])
+    x, vol = sampling.box(lo, lo + [length, width, width], dx, ppc=ppc, seed=0, jitter=0.0)
+    mat = Material("elastic", density, youngs_modulus=youngs, poisson_ratio=0.0)
+    dom = int(np.ceil((length + 2 * margin) / dx)) + 1
+    domw = int(np.ceil((width + 2 * margin) / dx)) + 1
+    probe = mpm.MPMConfig(materials=(mat,), dx=dx, dt=1e-9, domain=(dom, domw, domw),
+                          gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
+    dt = dt_fraction * mpm.max_stable_dt(probe)
+    cfg = mpm.MPMConfig(materials=(mat,), dx=dx, dt=dt, domain=(dom, domw, domw),
+                        gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
+    v = np.zeros_like(x)
+    v[:, 0] = v0 * np.cos(np.pi * (x[:, 0] - margin) / length)
+    state = mpm.init_state(cfg, x, v, vol=vol)
+    end = x[:, 0] < margin + 0.1 * length
+    c = np.sqrt(youngs / density)
+    return cfg, state, jnp.asarray(end), length / (2 * c), c
+
+
+def measure_bar(cells: int, ppc: int, dt_fraction: float):
+    cfg, state, end, t_quarter, c = bar_mode_scene(cells, ppc, dt_fraction)
+    n = int(np.ceil(1.6 * t_quarter / cfg.dt))
+    params = cfg.params
+
+    @jax.jit
+    def run(s):
+        def body(s, _):
+            s = mpm.substep(cfg, params, s)
+            return s, jnp.sum(jnp.where(end, s.v[:, 0], 0.0)) / jnp.sum(end)
+        return jax.lax.scan(body, s, None, length=n)[1]
+
+    t0 = time.perf_counter()
+    vel = np.asarray(run(state))
+    wall_first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    vel = np.asarray(run(state))
+    wall = time.perf_counter() - t0
+    k = int(np.argmax(vel < 0.0))
+    if vel[k] >= 0.0:
+        return dict(cells=cells, ppc=ppc, dt_fraction=dt_fraction, error=None, wall_s=wall)
+    # linear interpolation of the zero crossing between substeps k-1 and k
+    frac = vel[k - 1] / (vel[k - 1] - vel[k])
+    t_cross = (k + frac) * cfg.dt  # vel[i] is after substep i+1
+    c_meas = (c * t_quarter) / t_cross
+    return dict(cells=cells, ppc=ppc, dt=cfg.dt, dt_fraction=dt_fraction,
+                particles=int(state.x.shape[0]), substeps=n, wall_s=wall,
+                compile_and_first_run_s=wall_first, wave_speed=float(c_meas),
+                wave_speed_exact=float(c), error=float(abs(c_meas - c) / c))
+
+
+def cmd_mpm_study(args):
+    rows = []
+    for cells in args.cells:
+        for ppc in args.ppc:
+            for frac in args.dt_fraction:
+                rows.append(measure_bar(cells, ppc, frac))
+                print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    ok = [r for r in rows if r.get("error") is not None]
+    record = dict(bench="mpm-study", scene="free-free bar, first longitudinal mode, nu=0",
+                  known_answer="c = sqrt(E/rho) (quarter period L/(2c))", rows=rows)
+    if ok:
+        # cheapest configuration within 2 % of the exact wave speed
+        good = [r for r in ok if r["error"] <= 0.02]
+        if good:
+            best = min(good, key=lambda r: r["wall_s"])
+            record["cheapest_within_2pct"] = best
+    if args.out:
+        import pathlib
+        out = pathlib.Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "mpm_study.json").write_text(json.dumps(record, indent=1))
+        try:
+            import matplotlib
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            record["chart"] = "matplotlib not installed (pip install dax-physics[plot])"
+        else:
+            fig, ax = plt.subplots(figsize=(6, 4))
+            for ppc in args.ppc:
+                for frac, marker in zip(args.dt_fraction, "os^v", strict=False):
+                    pts = [(r["wall_s"], r["error"], r["cells"]) for r in ok
+                           if r["ppc"] == ppc and r["dt_fraction"] == frac]
+                    if pts:
+                        w_, e_, c_ = zip(*pts, strict=True)
+                        ax.plot(w_, e_, marker=marker, label=f"ppc {ppc}, dt {frac:g} x max")
+                        for wi, ei, ci in pts:
+                            ax.annotate(f"{ci}", (wi, ei), fontsize=7)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlabel("wall time of the run [s]")
+            ax.set_ylabel("relative error of the wave speed")
+            ax.set_title("MPM speed vs accuracy (labels: cells per bar length)")
+            ax.legend(fontsize=7)
+            fig.tight_layout()
+            fig.savefig(out / "mpm_study.png", dpi=120)
+            record["chart"] = str(out / "mpm_study.png")
+    _emit(record, args.json)
+
+
+# --------------------------------------------------------------------------- CLI
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m dax_physics.bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("mpm-block", help="the peers' MPM block-drop scene: throughput")
+    b.add_argument("--material", choices=("fluid", "elastic"), default="fluid")
+    b.add_argument("--grid", type=int, default=32)
+    b.add_argument("--particles", type=int, default=8192)
+    b.add_argument("--substeps", type=int, default=100)
+    b.add_argument("--batch", type=int, default=0, help="vmap over this many copies")
+    b.add_argument("--reps", type=int, default=5)
+    b.add_argument("--min-time", type=float, default=2.0)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(func=cmd_mpm_block)
+
+    g = sub.add_parser("mpm-grad", help="gradient time and memory, with/without checkpointing")
+    g.add_argument("--material", choices=("fluid", "elastic"), default="fluid")
+    g.add_argument("--grid", type=int, default=32)
+    g.add_argument("--particles", type=int, default=8192)
+    g.add_argument("--substeps", type=int, default=100)
+    g.add_argument("--checkpoint-segments", type=int, default=10,
+                   help="number of jax.checkpoint segments (<= 1: no checkpointing)")
+    g.add_argument("--reps", type=int, default=3)
+    g.add_argument("--json", action="store_true")
+    g.set_defaults(func=cmd_mpm_grad)
+
+    a = sub.add_parser("active-region", help="windowed vs full 128^3 grid on a rope scene")
+    a.add_argument("--window", type=int, nargs=3, default=(44, 40, 16))
+    a.add_argument("--no-colliders", action="store_true",
+                   help="rope alone (no table collider and pusher)")
+    a.add_argument("--substeps", type=int, default=50)
+    a.add_argument("--reps", type=int, default=3)
+    a.add_argument("--json", action="store_true")
+    a.set_defaults(func=cmd_active_region)
+
+    s = sub.add_parser("mpm-study", help="speed vs accuracy sweep (grid, ppc, dt)")
+    s.add_argument("--cells", type=int, nargs="+", default=(8, 16, 32))
+    s.add_argument("--ppc", type=int, nargs="+", default=(1, 8))
+    s.add_argument("--dt-fraction", type=float, nargs="+", default=(0.2, 0.8))
+    s.add_argument("--out", default="bench_out")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_mpm_study)
+
+    try:
+        from . import bench_cloth
+    except ImportError:  # pragma: no cover - cloth benchmarks not available
+        pass
+    else:
+        bench_cloth.add_subparsers(sub)
+    return p
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    args.func(args)
+
+
+if __name__ == "__main__":
+    main()
