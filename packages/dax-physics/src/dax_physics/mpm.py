@@ -54,6 +54,8 @@ WALL_MODES = ("slip", "sticky", "none")
 
 _OFFSETS = np.array([(i, j, k) for i in range(3) for j in range(3) for k in range(3)],
                     np.int32)
+#: (27, 4) rows (1, ox, oy, oz) of the stencil offsets, for the G2P contraction.
+_REDUCE = np.concatenate([np.ones((27, 1)), _OFFSETS], axis=1)
 
 
 def _stencil_weights(w):
@@ -486,12 +488,13 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
     gv4 = jnp.concatenate([gv, jnp.zeros_like(gm)[:, None]], axis=1).reshape(Wx, Wy, Wz, 4)
     g = jax.lax.gather(gv4, base, _BLOCK_GATHER, (3, 3, 3, 4),
                        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(n, 27, 4)
-    wts = _stencil_weights(w)
-    wg = [wts * g[:, :, c] for c in range(3)]
-    new_v = [jnp.sum(wg[c], axis=1) for c in range(3)]
-    offs = [jnp.asarray(_OFFSETS[:, a], dtype) for a in range(3)]
-    new_C = [[4.0 * inv_dx * (jnp.sum(wg[i] * offs[j], axis=1) - new_v[i] * fx[:, j])
-              for j in range(3)] for i in range(3)]
+    # All 27-node reductions as one contraction: S[n, c, d] = sum_o w_o g_oc (1, o)_d gives
+    # the velocity (d = 0) and sum_o w_o g_o o^T (d = 1..3) in a single pass.
+    wg = _stencil_weights(w)[:, :, None] * g
+    S = jnp.einsum("noc,od->ncd", wg, jnp.asarray(_REDUCE, dtype))
+    new_v = [S[:, c, 0] for c in range(3)]
+    new_C = [[4.0 * inv_dx * (S[:, i, 1 + j] - new_v[i] * fx[:, j]) for j in range(3)]
+             for i in range(3)]
     new_v_arr = jnp.stack(new_v, axis=-1)
     new_x = x + dt * new_v_arr
 
