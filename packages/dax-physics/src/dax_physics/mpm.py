@@ -208,9 +208,12 @@ def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
     if not np.all(np.isfinite(x)):
         bad = int(np.argwhere(~np.isfinite(x).all(1))[0, 0])
         raise ValueError(f"particle positions contain NaN or inf (first at particle {bad})")
-    v = np.zeros_like(x) if v is None else np.broadcast_to(np.asarray(v), x.shape)
-    if v.shape != x.shape:
-        raise ValueError(f"velocities must have shape {x.shape}, got {v.shape}")
+    v = np.zeros_like(x) if v is None else np.asarray(v)
+    # Check before broadcasting: np.broadcast_to's own error does not say what is wrong.
+    if not _broadcasts_to(v.shape, x.shape):
+        raise ValueError(f"velocities must have shape {x.shape} (or broadcast to it), "
+                         f"got {v.shape}")
+    v = np.broadcast_to(v, x.shape)
     if not np.all(np.isfinite(v)):
         raise ValueError("particle velocities contain NaN or inf")
     mat = np.zeros(n, np.int32) if mat is None else np.asarray(mat)
@@ -218,15 +221,27 @@ def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
         raise ValueError(f"material ids must have shape ({n},), got {mat.shape}")
     if not np.issubdtype(mat.dtype, np.integer):
         raise ValueError(f"material ids must be integers, got dtype {mat.dtype}")
-    if mat.min() < 0 or mat.max() >= len(cfg.materials):
-        raise ValueError(f"unknown material id {int(mat.max() if mat.max() >= 0 else mat.min())}:"
-                         f" the table has {len(cfg.materials)} materials (ids 0.."
-                         f"{len(cfg.materials) - 1})")
-    vol = np.full(n, cfg.dx ** 3 / 8) if vol is None else np.broadcast_to(np.asarray(vol), (n,))
+    bad_ids = mat[(mat < 0) | (mat >= len(cfg.materials))]
+    if bad_ids.size:
+        # name an offending id (the old message named mat.max(), a valid id, when the bad
+        # one was negative)
+        raise ValueError(f"unknown material id {int(bad_ids[0])}: the table has "
+                         f"{len(cfg.materials)} materials (ids 0..{len(cfg.materials) - 1})")
+    vol = np.full(n, cfg.dx ** 3 / 8) if vol is None else np.asarray(vol)
+    if not _broadcasts_to(vol.shape, (n,)):
+        raise ValueError(f"particle volumes must be a scalar or have shape ({n},), "
+                         f"got {vol.shape}")
+    vol = np.broadcast_to(vol, (n,))
     if not np.all(vol > 0):
         raise ValueError("particle volumes must be > 0 m^3")
-    lo = (cfg.wall_cells if cfg.walls != "none" else 1) * cfg.dx
-    hi = np.asarray(cfg.domain) * cfg.dx - lo
+    # Grid nodes sit at 0 .. n - 1 cells, so a particle's B-spline stencil fits in the grid
+    # only for 0.5 <= x / dx < n - 1.5. Keep particles at least half a cell inside that (and
+    # out of the walls). The upper bound used to be n - 1 cells without walls, which
+    # accepted particles whose stencil was already outside the grid (flagged as escaped on
+    # the first substep).
+    walls = cfg.wall_cells if cfg.walls != "none" else 0
+    lo = max(walls, 1) * cfg.dx
+    hi = np.asarray(cfg.domain) * cfg.dx - max(walls, 2) * cfg.dx
     outside = np.any((x < lo) | (x > hi), axis=1)
     if outside.any():
         i = int(np.argmax(outside))
@@ -248,6 +263,14 @@ def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
         colliders=colliders, origin=jnp.zeros((3,), jnp.int32),
         finite=jnp.asarray(True), escaped=jnp.asarray(False), time=jnp.zeros((), dtype))
     return state.replace(origin=_window_origin(cfg, state.x))
+
+
+def _broadcasts_to(shape, target) -> bool:
+    """Whether an array of ``shape`` broadcasts to exactly ``target``."""
+    try:
+        return np.broadcast_shapes(tuple(shape), tuple(target)) == tuple(target)
+    except ValueError:
+        return False
 
 
 def check_state(state: MPMState) -> None:
@@ -373,14 +396,12 @@ def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, F
         # F slot holds b_e; J from det(b_e) = J^2.
         b = Fm
         J2 = jnp.maximum(_det(b), 1e-12)
-        J = jnp.sqrt(J2)
         scale = J2 ** (-1.0 / 3.0)
         tr = (b[0][0] + b[1][1] + b[2][2]) * scale
         kappa = lam + 2.0 / 3.0 * mu
         t = [[mu * (b[i][j] * scale - (tr / 3.0 if i == j else 0.0))
               + (0.5 * kappa * (J2 - 1.0) if i == j else zero) for j in range(3)]
              for i in range(3)]
-        del J
         tau = add(tau, t, None if single else mat_kind == KIND_CODE["plastic"])
     return tau
 
@@ -514,6 +535,13 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
             b_new = _return_map(params, state.mat, b_trial)
             Fn = [[jnp.where(is_pl, b_new[i][j], Fn[i][j]) for j in range(3)]
                   for i in range(3)]
+        if "fluid" in kinds:
+            # Fluids use J only; keep their F at identity so a long mixture rollout never
+            # polar-decomposes an ill-conditioned, unused F (whose gradient could overflow).
+            is_fl = jnp.asarray([KIND_CODE[mm.kind] for mm in cfg.materials],
+                                jnp.int32)[state.mat] == KIND_CODE["fluid"]
+            Fn = [[jnp.where(is_fl, 1.0 if i == j else 0.0, Fn[i][j]) for j in range(3)]
+                  for i in range(3)]
         new_F = _stack3(Fn)
 
     new_C_arr = _stack3(new_C)
@@ -629,8 +657,10 @@ def strain_energy_density(cfg: MPMConfig, params: MaterialParams, state: MPMStat
     fr = sum((Fm[i][j] - R[i][j]) ** 2 for i in range(3) for j in range(3))
     e_el = mu * fr + 0.5 * lam * (J - 1.0) ** 2
     Jf = state.J
-    # pressure p = K J (J - 1)  (Kirchhoff)  <=>  psi(J) = K (J^3/3 - J^2/2 + 1/6)
-    e_fl = lam * (Jf ** 3 / 3.0 - Jf ** 2 / 2.0 + 1.0 / 6.0)
+    # Kirchhoff pressure tau = K J (J - 1) = J psi'(J)  <=>  psi(J) = K (J - 1)^2 / 2.
+    # (This used to be K (J^3/3 - J^2/2 + 1/6), whose psi' = K J (J - 1) is the Kirchhoff
+    # stress itself, i.e. the potential of tau = K J^2 (J - 1): off by a factor J.)
+    e_fl = 0.5 * lam * (Jf - 1.0) ** 2
     J2 = jnp.maximum(_det(Fm), 1e-12)
     tr = (Fm[0][0] + Fm[1][1] + Fm[2][2]) * J2 ** (-1.0 / 3.0)
     kappa = lam + 2.0 / 3.0 * mu

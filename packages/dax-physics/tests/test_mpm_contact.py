@@ -1,0 +1,206 @@
+"""MPM validation with colliders: plastic press, Coulomb friction on a slope, grasp/release."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from dax_physics import colliders, materials, mpm, sampling
+
+G = 9.81
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _com_trace(cfg, params, state, n):
+    """Final state and the particles' mean position after each of ``n`` substeps."""
+
+    def body(s, _):
+        s = mpm.substep(cfg, params, s)
+        return s, jnp.mean(s.x, axis=0)
+
+    return jax.lax.scan(body, state, None, length=n)
+
+
+# ----------------------------------------------------------------- plastic press
+
+def _thickness(x, mask):
+    z = x[mask, 2]
+    return float(np.percentile(z, 99) - np.percentile(z, 1))
+
+
+def test_plastic_block_keeps_a_permanent_deformation_after_a_press():
+    """A dough block and an elastic block with the same E, nu and rho stand side by side on
+    the floor; one box collider presses both to about 60 % of their height, lifts off, and
+    the scene settles. The elastic block recovers its height, the plastic one does not.
+    The yield stress (3 kPa) is above the blocks' own hydrostatic load (rho g h = 1.2 kPa)
+    and far below the press's (about E x 50 % = 25 kPa)."""
+    dx, dt, h0 = 0.02, 1e-3, 0.1
+    dough = materials.dough(yield_stress=3e3)
+    elastic = materials.Material("elastic", dough.density, youngs_modulus=dough.youngs_modulus,
+                                 poisson_ratio=dough.poisson_ratio)
+    press = colliders.ColliderSpec("box", (0.2, 0.1, 0.05), mode="separate")
+    cfg = mpm.MPMConfig(materials=(dough, elastic), dx=dx, dt=dt, domain=(24, 14, 16),
+                        colliders=(press,), max_speed=1.0)
+    floor = cfg.wall_cells * dx
+    xa, vol = sampling.box((0.08, 0.09, floor), (0.18, 0.19, floor + h0), dx, ppc=8)
+    xb, _ = sampling.box((0.30, 0.09, floor), (0.40, 0.19, floor + h0), dx, ppc=8)
+    x = np.concatenate([xa, xb])
+    plastic = np.arange(len(x)) < len(xa)
+    cs = colliders.ColliderState.create([[0.24, 0.14, floor + h0 + 0.06]])  # 1 cm above
+    s = mpm.init_state(cfg, x, vol=vol, mat=np.where(plastic, 0, 1).astype(np.int32),
+                       colliders=cs)
+    params = cfg.params
+
+    def run(s, chunks):
+        for _ in range(chunks):
+            s = mpm.rollout(cfg, params, s, 20)
+        return s
+
+    def heights(s):
+        xs = np.asarray(s.x)
+        return np.array([_thickness(xs, plastic), _thickness(xs, ~plastic)])
+
+    start = heights(s)
+    s = run(mpm.set_collider_velocity(s, 0, [0.0, 0.0, -0.5]), 6)   # 6 cm down
+    pressed = heights(s)
+    s = run(mpm.set_collider_velocity(s, 0, [0.0, 0.0, 0.5]), 8)    # 8 cm up, clear
+    s = mpm.set_collider_velocity(s, 0, [0.0, 0.0, 0.0])
+    settled = []
+    for _ in range(20):  # 400 substeps; average the elastic block's ringing over the end
+        s = run(s, 1)
+        settled.append(heights(s))
+    mpm.check_state(s)
+    final = np.mean(settled[-10:], axis=0)
+    assert np.all(pressed < 0.8 * start), (
+        f"the press did not compress the blocks: heights {start} m -> {pressed} m")
+    assert final[1] > 0.9 * start[1], (
+        f"the elastic block did not recover: height {start[1]:.4f} m -> pressed "
+        f"{pressed[1]:.4f} m -> settled {final[1]:.4f} m (expected > {0.9 * start[1]:.4f})")
+    assert final[0] < 0.85 * start[0], (
+        f"the plastic block recovered its height: {start[0]:.4f} m -> pressed {pressed[0]:.4f}"
+        f" m -> settled {final[0]:.4f} m (expected a permanent set, < {0.85 * start[0]:.4f})")
+    assert final[0] < final[1] - 0.1 * h0, (
+        f"plastic block height {final[0]:.4f} m should stay clearly below the elastic "
+        f"block's {final[1]:.4f} m")
+
+
+# ----------------------------------------------------------------- friction on a slope
+
+MU = 0.5
+SLOPE_STEPS = 300
+
+
+@pytest.fixture(scope="module")
+def slope():
+    """A tofu block on a plane collider tilted about y (walls off, gravity on)."""
+    dx = 0.02
+    plane = colliders.ColliderSpec("plane", mode="separate", friction=MU)
+    cfg = mpm.MPMConfig(materials=(materials.tofu(),), dx=dx, dt=1e-3, domain=(40, 8, 28),
+                        walls="none", colliders=(plane,), max_speed=1.0)
+    local, vol = sampling.box((-0.14, -0.04, 0.0), (-0.06, 0.04, 0.04), dx, ppc=8)
+    origin = np.array([0.4, 0.08, 0.28])
+
+    def run(tan):
+        theta = float(np.arctan(tan))
+        q = colliders.quat_from_axis_angle(jnp.array([0.0, 1.0, 0.0]), theta)
+        R = np.asarray(colliders.quat_to_matrix(q), np.float64)
+        x = local @ R.T + origin
+        cs = colliders.ColliderState.create([origin], quat=[q])
+        s0 = mpm.init_state(cfg, x, vol=vol, colliders=cs)
+        s1, com = _com_trace(cfg, cfg.params, s0, SLOPE_STEPS)
+        mpm.check_state(s1)
+        # displacement in the plane's frame: x down the slope, z along the normal
+        disp = (np.asarray(com, np.float64) - np.asarray(s0.x, np.float64).mean(0)) @ R
+        return theta, disp
+
+    return cfg, run
+
+
+def test_block_on_a_slope_sticks_below_the_friction_angle(slope):
+    cfg, run = slope
+    theta, disp = run(0.6 * MU)  # tan(theta) = 0.3 < mu
+    half = SLOPE_STEPS // 2
+    t1, t2 = half * cfg.dt, SLOPE_STEPS * cfg.dt
+    moved = float(disp[-1, 0] - disp[half - 1, 0])
+    frictionless = 0.5 * G * np.sin(theta) * (t2 ** 2 - t1 ** 2)
+    assert abs(moved) < 0.01 * frictionless, (
+        f"block slid {moved:.3g} m down a slope with tan = {np.tan(theta):.2f} < mu = {MU} "
+        f"between t = {t1} s and {t2} s (frictionless: {frictionless:.3g} m)")
+    assert abs(disp[-1, 2]) < cfg.dx, f"block sank {disp[-1, 2]:.3g} m into the plane"
+
+
+def test_block_on_a_slope_slides_above_the_friction_angle(slope):
+    cfg, run = slope
+    theta, disp = run(1.6 * MU)  # tan(theta) = 0.8 > mu
+    t = cfg.dt * np.arange(1, SLOPE_STEPS + 1)
+    half = SLOPE_STEPS // 2
+    accel = 2.0 * np.polyfit(t[half:], disp[half:, 0], 2)[0]
+    expected = G * (np.sin(theta) - MU * np.cos(theta))
+    assert accel == pytest.approx(expected, rel=0.10), (
+        f"sliding acceleration {accel:.3f} m/s^2, expected g (sin - mu cos) = {expected:.3f} "
+        f"(frictionless {G * np.sin(theta):.3f})")
+    assert abs(disp[-1, 2]) < cfg.dx, f"block sank {disp[-1, 2]:.3g} m into the plane"
+
+
+# ----------------------------------------------------------------- grasp and release
+
+def test_grasped_particles_follow_the_collider_and_fall_after_release():
+    dx, dt = 1.0 / 16, 2e-3
+    gripper = colliders.ColliderSpec("sphere", (1.5 * dx,), mode="separate", friction=0.5)
+    cfg = mpm.MPMConfig(materials=(materials.tofu(),), dx=dx, dt=dt, domain=(16, 16, 16),
+                        colliders=(gripper,), max_speed=1.0)
+    floor = cfg.wall_cells * dx
+    x, vol = sampling.box((6 * dx, 6 * dx, floor), (10 * dx, 10 * dx, floor + 3 * dx), dx,
+                          ppc=8)
+    p0 = np.array([8 * dx, 8 * dx, floor + 3 * dx + 0.5 * dx])
+    s = mpm.init_state(cfg, x, vol=vol, colliders=colliders.ColliderState.create([p0]))
+    s = mpm.grasp(cfg, s, 0, radius=0.75 * dx)
+    held = np.asarray(s.held) == 0
+    assert 4 <= held.sum() < len(x) // 2, f"grasp took {held.sum()} of {len(x)} particles"
+    offset = np.asarray(s.x, np.float64)[held] - p0  # identity orientation at grasp
+
+    v_c, w_c = np.array([0.1, 0.0, 0.5]), np.array([0.0, 0.0, 2.0])
+    s = mpm.set_collider_velocity(s, 0, v_c, w_c)
+    chunk = 50
+    s = mpm.rollout(cfg, cfg.params, mpm.rollout(cfg, cfg.params, s, chunk), chunk)
+    mpm.check_state(s)
+    t = 2 * chunk * dt
+    pos = np.asarray(s.colliders.pos[0], np.float64)
+    np.testing.assert_allclose(pos, p0 + v_c * t, atol=1e-5, err_msg="collider position")
+    R = np.asarray(colliders.quat_to_matrix(s.colliders.quat[0]), np.float64)
+    angle = np.arctan2(R[1, 0], R[0, 0])
+    assert angle == pytest.approx(w_c[2] * t, abs=1e-4), "collider yaw after the lift"
+    xs = np.asarray(s.x, np.float64)
+    np.testing.assert_allclose(xs[held], pos + offset @ R.T, atol=1e-5,
+                               err_msg="held particles do not move rigidly with the collider")
+    np.testing.assert_allclose(np.asarray(s.v)[held],
+                               v_c + np.cross(w_c, xs[held] - pos), atol=1e-4,
+                               err_msg="held particles' velocity is not the collider's")
+    lifted = float(xs[~held, 2].mean() - x[~held, 2].mean())
+    assert lifted > 0.5 * v_c[2] * t, (
+        f"the block hanging from the grasp rose {lifted:.4f} m, expected about "
+        f"{v_c[2] * t:.4f} m")
+
+    before_v = s.v
+    s = mpm.release(s, 0)
+    assert np.all(np.asarray(s.held) == -1), "release left particles held"
+    # the gripper moves up and away faster than the block, so it no longer touches it
+    s = mpm.set_collider_velocity(s, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    before = np.asarray(s.x, np.float64)
+    s = mpm.rollout(cfg, cfg.params, s, chunk)
+    mpm.check_state(s)
+    after = np.asarray(s.x, np.float64)
+    assert after[:, 2].min() > floor + dx, "the released block reached the floor: too long"
+    # Nothing touches the released block, so its centre of mass falls freely, starting
+    # with its mean velocity at release (symplectic Euler: z drops by v t + g t (t + dt) / 2).
+    t_fall = chunk * dt
+    vz = float(np.mean(np.asarray(before_v)[:, 2]))
+    expected = -vz * t_fall + 0.5 * G * t_fall * (t_fall + dt)
+    drop = float(before[:, 2].mean() - after[:, 2].mean())
+    assert drop == pytest.approx(expected, abs=0.005 * 0.5 * G * t_fall ** 2), (
+        f"after release the block's centre fell {drop:.4f} m in {t_fall} s, expected "
+        f"free fall {expected:.4f} m")
