@@ -506,7 +506,11 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
 
     # G2P: gather each particle's 3x3x3 block (padded to 4 channels: aligned rows gather
     # faster).
-    gv4 = jnp.concatenate([gv, jnp.zeros_like(gm)[:, None]], axis=1).reshape(Wx, Wy, Wz, 4)
+    # The identity matmul materialises the updated grid; otherwise XLA fuses the whole grid
+    # update (division, walls, colliders) into the gather and redoes it for every one of
+    # the 27 reads per particle (measured: a third of the substep time).
+    gv4 = jnp.concatenate([gv, jnp.zeros_like(gm)[:, None]], axis=1) @ jnp.eye(4, dtype=dtype)
+    gv4 = gv4.reshape(Wx, Wy, Wz, 4)
     g = jax.lax.gather(gv4, base, _BLOCK_GATHER, (3, 3, 3, 4),
                        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(n, 27, 4)
     # All 27-node reductions as one contraction: S[n, c, d] = sum_o w_o g_oc (1, o)_d gives
