@@ -1,0 +1,153 @@
+"""Push-Rope behaviour: jit/vmap, rewards, determinism, gradients, scripted pushes.
+
+Uses the small configuration from conftest (50 substeps per action) except for one test
+of the default configuration."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import small_overrides
+
+import dax_tasks
+from dax_tasks import push_rope
+
+FAR = np.asarray([0.5, 0.5, 0.1, 0.5, 0.5, 0.1], np.float32)  # a zero-length push, off rope
+
+
+@pytest.fixture(scope="module")
+def batched():
+    return dax_tasks.make("push_rope", batch_size=2, **small_overrides())
+
+
+@pytest.fixture(scope="module")
+def grad_fn(task):
+    def r_gt(x, action, state):
+        state = state.replace(physics=state.physics.replace(x=x))
+        return task._step_one(state, action)[4]["r_gt"]
+
+    return jax.jit(jax.grad(r_gt, argnums=(0, 1)))
+
+
+def test_reset_gives_observation_in_space_and_valid_state(task, reset0):
+    obs, state = reset0
+    assert obs.shape == task.observation_space.shape, f"got obs shape {obs.shape}"
+    assert int(state.t) == 0 and bool(state.finite)
+    assert state.physics.x.shape == state.goal.shape, (
+        f"particles {state.physics.x.shape} vs goal {state.goal.shape}")
+    n = state.physics.x.shape[0]
+    assert 300 <= n <= 800, f"expected 300-800 rope particles, got {n}"
+
+
+def test_step_reward_finite_and_in_unit_interval(task, reset0, expert):
+    _, state = reset0
+    for action in (FAR, expert(state)):
+        obs, new, reward, done, info = task.step(state, action)
+        r = float(reward)
+        assert np.isfinite(r) and 0.0 <= r <= 1.0, f"expected r_gt in [0, 1], got {r}"
+        assert bool(info["finite"]) and not bool(info["escaped"]), info
+        assert int(new.t) == 1 and not bool(done)
+
+
+def test_done_when_horizon_reached(task, reset0):
+    _, state = reset0
+    *_, done, info = task.step(state.replace(t=jnp.asarray(task.horizon - 1, jnp.int32)), FAR)
+    assert bool(done) and int(info["t"]) == task.horizon, f"got done={done}, t={info['t']}"
+
+
+def test_same_seed_same_trajectory(task, expert):
+    def run(seed):
+        obs, s = task.reset(jax.random.PRNGKey(seed))
+        out = [obs]
+        for _ in range(2):
+            obs, s, r, _, _ = task.step(s, expert(s))
+            out += [obs, r]
+        return out
+
+    a, b, c = run(3), run(3), run(4)
+    for u, v in zip(a, b, strict=True):
+        np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    assert not np.allclose(np.asarray(a[0]), np.asarray(c[0])), "seeds 3 and 4 gave equal obs"
+
+
+def test_nan_action_under_jit_marks_info_not_finite(task, reset0):
+    _, state = reset0
+    bad = FAR.copy()
+    bad[0] = np.nan
+    # task._step is the jitted step that task.step calls after its eager checks, i.e. what
+    # runs inside a user's jit, where values cannot be inspected.
+    *_, info = task._step(state, jnp.asarray(bad))
+    assert not bool(info["finite"]), f"expected info['finite'] False, got {info['finite']}"
+
+
+def test_batched_reset_and_step_match_single_envs(task, batched):
+    keys = jax.random.split(jax.random.PRNGKey(7), 2)
+    obs, state = batched.reset(keys)
+    assert obs.shape == (2, *task.observation_space.shape)
+    assert batched.action_space.shape == (2, 6)
+    acts = np.stack([FAR, np.asarray(push_rope.expert_action(
+        task.spec, jax.tree_util.tree_map(lambda v: v[1], state).physics, state.goal[1]))])
+    _, new, reward, done, info = batched.step(state, acts)
+    assert reward.shape == (2,) and done.shape == (2,)
+    for i in range(2):
+        _, s1 = task.reset(keys[i])
+        _, _, r1, _, _ = task.step(s1, acts[i])
+        assert float(reward[i]) == pytest.approx(float(r1), abs=1e-5), (
+            f"env {i}: batched reward {float(reward[i])} vs single {float(r1)}")
+    with pytest.raises(ValueError, match=r"\(2, 6\)"):
+        batched.step(state, FAR)
+
+
+def test_action_gradient_finite_and_nonzero_for_touching_push(task, reset0, expert, grad_fn):
+    _, state = reset0
+    gx, ga = grad_fn(state.physics.x, expert(state), state)
+    assert bool(jnp.all(jnp.isfinite(ga))) and bool(jnp.all(jnp.isfinite(gx))), (ga, gx)
+    assert float(jnp.max(jnp.abs(ga))) > 0.0, f"expected a non-zero action gradient, got {ga}"
+    assert float(jnp.max(jnp.abs(gx))) > 0.0, "expected a non-zero state gradient"
+
+
+def test_scripted_push_improves_reward_over_doing_nothing(task, expert):
+    for seed in range(2):
+        _, s = task.reset(jax.random.PRNGKey(seed))
+        r_push = float(task.step(s, expert(s))[2])
+        r_idle = float(task.step(s, FAR)[2])
+        assert r_push > r_idle + 1e-3, (
+            f"seed {seed}: expected the scripted push to beat doing nothing, "
+            f"got r_gt {r_push:.4f} vs {r_idle:.4f}")
+
+
+def test_contact_adjustment_moves_push_start_onto_rope(task, reset0):
+    import dataclasses
+
+    _, state = reset0
+    x = state.physics.x
+    raw = jnp.asarray([0.2, 0.2, 0.08, 0.3, 0.2, 0.08])
+    on = push_rope.push_start(task.spec, state.physics, raw)
+    off = push_rope.push_start(dataclasses.replace(task.spec, contact_adjustment=False),
+                               state.physics, raw)
+    np.testing.assert_array_equal(np.asarray(off), np.asarray(raw[:3]))
+    scene = task.spec.scene
+    gap = float(jnp.min(jnp.linalg.norm(x[:, :2] - on[:2], axis=1)))
+    reach = scene.pusher_radius + 2 * scene.rope_radius
+    assert gap <= reach + 1e-6, f"expected the adjusted start within {reach} m, got {gap}"
+    assert float(jnp.linalg.norm(on - raw[:3])) > 0.01, f"start did not move: {on} vs {raw}"
+    assert float(on[2]) <= float(jnp.max(x[:, 2])) + 1e-6, "tip height was not lowered"
+
+
+def test_aux_reward_option_adds_end_effector_term():
+    task = dax_tasks.make("push_rope", **small_overrides(aux_reward=True))
+    assert task.spec.aux_reward
+    _, state = task.reset(jax.random.PRNGKey(0))
+    _, _, reward, _, info = task.step(state, FAR)
+    want = float(info["r_gt"]) + float(info["r_aux"])
+    assert float(reward) == pytest.approx(want, rel=1e-6), f"expected {want}, got {reward}"
+    assert 0.0 < float(info["r_aux"]) <= 1.0
+
+
+def test_default_configuration_steps_finite_without_escaping():
+    task = dax_tasks.make("push_rope")
+    _, state = task.reset(jax.random.PRNGKey(0))
+    a = push_rope.expert_action(task.spec, state.physics, state.goal)
+    _, _, reward, _, info = task.step(state, a)
+    assert bool(info["finite"]) and not bool(info["escaped"]), info
+    assert 0.0 <= float(reward) <= 1.0

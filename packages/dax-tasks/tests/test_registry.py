@@ -1,0 +1,72 @@
+"""Registry, spec validation and input checks that need no compiled step."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import dax_tasks
+
+NINE = {"pour_water", "pour_soup", "push_rope", "whip_rope", "fold_cloth1", "fold_cloth3",
+        "fold_tshirt", "unfold_cloth1", "unfold_cloth3"}
+
+
+def test_tasks_lists_the_nine_benchmark_names():
+    assert set(dax_tasks.TASKS) == NINE and len(dax_tasks.TASKS) == 9, (
+        f"expected {sorted(NINE)}, got {dax_tasks.TASKS}")
+
+
+def test_unknown_name_error_lists_valid_names():
+    with pytest.raises(ValueError) as err:
+        dax_tasks.make("push_rop")
+    for name in NINE:
+        assert name in str(err.value), f"expected {name!r} in the message, got {err.value}"
+
+
+def test_declared_but_unimplemented_task_says_what_is_available():
+    with pytest.raises(NotImplementedError, match="push_rope") as err:
+        dax_tasks.make("fold_cloth1")
+    assert "fold_cloth1" in str(err.value), f"expected the task name in {err.value}"
+
+
+def test_unknown_override_is_refused():
+    with pytest.raises(ValueError, match="horizn"):
+        dax_tasks.make("push_rope", horizn=3)
+
+
+def test_spec_is_hashable_and_validated():
+    spec = dax_tasks.get_spec("push_rope")
+    assert hash(spec) == hash(dataclasses.replace(spec))
+    assert spec.horizon == 6 and spec.action_dim == 6 and spec.action_kind == "push"
+    with pytest.raises(ValueError, match="low <= high"):
+        dataclasses.replace(spec, action_low=spec.action_high, action_high=spec.action_low)
+    with pytest.raises(ValueError, match="unknown distance"):
+        dataclasses.replace(spec, distance="emd")
+    with pytest.raises(ValueError, match="horizon"):
+        dataclasses.replace(spec, horizon=0)
+
+
+def test_action_space_matches_spec_bounds(task):
+    spec = task.spec
+    assert task.action_space.shape == (6,)
+    np.testing.assert_allclose(task.action_space.low, spec.action_low, rtol=1e-6)
+    np.testing.assert_allclose(task.action_space.high, spec.action_high, rtol=1e-6)
+    assert task.horizon == 6
+    n = task.defn.goal(spec).shape[0]
+    want = (len(range(0, n, spec.obs_stride)) * 3 + 3,)
+    assert task.observation_space.shape == want, (
+        f"expected obs shape {want}, got {task.observation_space.shape}")
+
+
+def test_wrong_action_shape_is_a_clear_error(task, reset0):
+    _, state = reset0
+    with pytest.raises(ValueError, match=r"shape \(6,\), got \(5,\)"):
+        task.step(state, np.zeros(5, np.float32))
+
+
+def test_nan_action_is_a_clear_error_eagerly(task, reset0):
+    _, state = reset0
+    a = np.asarray(task.spec.action_low, np.float32)
+    a[2] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        task.step(state, a)
