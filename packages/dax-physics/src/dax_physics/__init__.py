@@ -2,7 +2,7 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import colliders, materials, mpm, sampling
+from . import cloth, colliders, materials, mpm, sampling
 from .colliders import ColliderSpec, ColliderState
 from .materials import Material, MaterialParams, dough, rope, tofu, water
 from .mpm import (
@@ -24,7 +24,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
 __all__ = [
-    "ColliderSpec", "ColliderState", "MPMConfig", "MPMState", "Material", "MaterialParams",
+    "ColliderSpec", "ColliderState", "cloth", "MPMConfig", "MPMState", "Material", "MaterialParams",
     "check_state", "colliders", "dough", "grasp", "init_state", "materials", "max_stable_dt",
     "mpm", "release", "rollout", "rope", "sampling", "set_collider_velocity", "substep", "tofu",
     "water",

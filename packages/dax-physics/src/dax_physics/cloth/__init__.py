@@ -1,0 +1,64 @@
+"""Mass-spring cloth for dax-physics (SI units, z up).
+
+* General triangle meshes (:mod:`.sim`, :mod:`.mesh`): structural, shear and bending
+  springs derived from the mesh, gravity, air drag, table contact with Coulomb friction,
+  the shared SDF colliders, vertex-vertex self-collision via a static-shape spatial hash,
+  strain limiting, grippers and the pick-and-place macro (:mod:`.grasp`), checkpointed
+  rollouts.
+* A fast stencil path for regular grid cloth (:mod:`.grid`), used by the cloth-drop
+  benchmark.
+
+See ``README_cloth.md`` for the parameters, their units and the stable time step.
+"""
+
+from .grasp import PickPlace, grasp, move_gripper, nearest_vertex_point, pick_and_place, release
+from .grid import (
+    GridCloth,
+    GridClothConfig,
+    GridState,
+    cloth_drop_scene,
+    grid_forces,
+    grid_rest_lengths,
+    grid_simulate,
+    grid_step,
+    stable_dt,
+)
+from .mesh import (
+    MeshError,
+    load_mesh,
+    mesh_springs,
+    polygon_mesh,
+    save_mesh,
+    square_mesh,
+    tshirt_mesh,
+    tshirt_outline,
+    validate_mesh,
+)
+from .sim import (
+    Cloth,
+    ClothConfig,
+    ClothState,
+    check_stable,
+    energy,
+    make_cloth,
+    max_stable_dt,
+    mesh_cloth,
+    self_collision_candidates,
+    self_collision_forces,
+    simulate,
+    spring_forces,
+    square_cloth,
+    step,
+    tshirt_cloth,
+)
+
+__all__ = [
+    "Cloth", "ClothConfig", "ClothState", "GridCloth", "GridClothConfig", "GridState",
+    "MeshError", "PickPlace", "check_stable", "cloth_drop_scene", "energy", "grasp",
+    "grid_forces", "grid_rest_lengths", "grid_simulate", "grid_step", "load_mesh",
+    "make_cloth", "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper",
+    "nearest_vertex_point", "pick_and_place", "polygon_mesh", "release", "save_mesh",
+    "self_collision_candidates", "self_collision_forces", "simulate", "spring_forces",
+    "square_cloth", "square_mesh", "stable_dt", "step", "tshirt_cloth", "tshirt_mesh",
+    "tshirt_outline", "validate_mesh",
+]

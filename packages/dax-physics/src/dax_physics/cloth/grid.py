@@ -1,0 +1,204 @@
+"""Fast path for regular grid cloth: a stencil over the (3, n, m) position array.
+
+A regular n x m vertex grid with the 12-neighbour spring pattern of the standard
+cloth-drop benchmark (structural (1,0),(0,1); shear (1,1),(1,-1); bending "two apart"
+(2,0),(0,2)) needs no index tables: every spring family is a pair of shifted slices of
+the grid, so one substep is a handful of fused element-wise XLA loops and many substeps
+run inside one jitted ``lax.scan``.
+
+Layout: positions and velocities are stored component-major, ``(3, n, m)`` [m], [m/s],
+so the grid axes are the contiguous, vectorised ones. :func:`to_vertices` and
+:func:`from_vertices` convert to and from the ``(n*m, 3)`` vertex layout used by
+:mod:`dax_physics.cloth` (row-major, vertex ``i*m + j``).
+
+Physics (semi-implicit Euler, SI units, z up)::
+
+    f_i = sum_springs (k (|d| - L) + c (v_j - v_i).d_hat) d_hat      d = x_j - x_i
+    v  <- v + dt (f / m + g)
+    x  <- x + dt v
+    ground clamp: where x_z < z_ground: x_z = z_ground and v_z = max(v_z, 0)
+
+This is exactly the benchmark scene's model (a frictionless ground clamp, no
+self-collision); the general mesh solver in :mod:`dax_physics.cloth.sim` adds friction,
+colliders, self-collision and grasping.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._pytree import pytree_dataclass
+
+#: The six unique neighbour directions (di, dj) and their spring family.
+GRID_DIRECTIONS = ((1, 0, "struct"), (0, 1, "struct"), (1, 1, "shear"), (1, -1, "shear"),
+                   (2, 0, "bend"), (0, 2, "bend"))
+
+
+@dataclasses.dataclass(frozen=True)
+class GridClothConfig:
+    """Static configuration of a grid cloth (hashable; a jit static argument).
+
+    n, m: vertices along the two grid axes.
+    dt: substep [s].
+    mass: mass of one vertex [kg].
+    k_struct, k_shear, k_bend: spring stiffness [N/m] of the three families.
+    damping: dashpot coefficient along each spring [N s/m].
+    gravity: acceleration (gx, gy, gz) [m/s^2].
+    ground: height of the ground clamp [m]; ``None`` disables it.
+    """
+
+    n: int
+    m: int
+    dt: float = 1e-4
+    mass: float = 1.0 / 4096
+    k_struct: float = 1000.0
+    k_shear: float = 1000.0
+    k_bend: float = 200.0
+    damping: float = 0.02
+    gravity: tuple = (0.0, 0.0, -9.8)
+    ground: float | None = 0.0
+
+    def stiffness(self, family: str) -> float:
+        return {"struct": self.k_struct, "shear": self.k_shear, "bend": self.k_bend}[family]
+
+    def max_stable_dt(self) -> float:
+        """Largest stable substep [s] (Gershgorin bound, see :func:`stable_dt`)."""
+        ksum = 4 * self.k_struct + 4 * self.k_shear + 4 * self.k_bend
+        return stable_dt(ksum, 12 * self.damping, self.mass)
+
+    def check_stable(self):
+        """Raise ``ValueError`` naming the largest stable dt if ``dt`` exceeds it."""
+        dtmax = self.max_stable_dt()
+        if not self.dt <= dtmax:
+            raise ValueError(f"grid cloth substep dt={self.dt:g} s is unstable: the largest "
+                             f"stable dt for these springs and masses is {dtmax:.4g} s")
+
+
+def stable_dt(k_sum, c_sum, mass, safety: float = 0.9) -> float:
+    """Largest stable semi-implicit Euler substep [s] for a vertex of ``mass`` [kg] whose
+    springs sum to ``k_sum`` [N/m] and dashpots to ``c_sum`` [N s/m].
+
+    Uses the Gershgorin bounds omega^2 <= 2 k_sum / m and gamma <= 2 c_sum / m on the
+    highest mode and the stability condition of semi-implicit Euler for a damped
+    oscillator, omega^2 dt^2 + 2 gamma dt < 4, times a ``safety`` factor.
+    """
+    w2 = 2.0 * float(k_sum) / float(mass)
+    g = 2.0 * float(c_sum) / float(mass)
+    if w2 <= 0:
+        return float("inf") if g <= 0 else safety * 2.0 / g
+    return safety * (-g + np.sqrt(g * g + 4.0 * w2)) / w2
+
+
+@pytree_dataclass
+class GridCloth:
+    """Rest lengths [m] of the six spring directions (arrays of the overlap shapes)."""
+
+    rest: tuple  # six arrays, shapes (n - di, m - |dj|)
+
+
+@pytree_dataclass
+class GridState:
+    x: jnp.ndarray  # (3, n, m) positions [m]
+    v: jnp.ndarray  # (3, n, m) velocities [m/s]
+
+
+def to_vertices(a):
+    """(3, n, m) -> (n*m, 3)."""
+    return jnp.moveaxis(a, 0, -1).reshape(-1, 3)
+
+
+def from_vertices(a, n, m):
+    """(n*m, 3) -> (3, n, m)."""
+    return jnp.moveaxis(jnp.asarray(a).reshape(n, m, 3), -1, 0)
+
+
+def _pair_slices(n, m, di, dj):
+    """Slices (a, b) of the grid so that b = a shifted by (di, dj), both in range."""
+    a0 = (slice(0, n - di), slice(max(0, -dj), m - max(0, dj)))
+    b0 = (slice(di, n), slice(max(0, dj), m - max(0, -dj)))
+    return a0, b0
+
+
+def grid_rest_lengths(x0_vertices, n, m):
+    """Rest lengths of the six directions from a (n*m, 3) rest configuration (numpy,
+    computed in the array's own precision so they match table-based implementations)."""
+    x0 = np.asarray(x0_vertices).reshape(n, m, 3)
+    out = []
+    for di, dj, _ in GRID_DIRECTIONS:
+        a, b = _pair_slices(n, m, di, dj)
+        out.append(np.linalg.norm(x0[b] - x0[a], axis=-1).astype(x0.dtype))
+    return GridCloth(tuple(jnp.asarray(r) for r in out))
+
+
+def grid_forces(cfg: GridClothConfig, cloth: GridCloth, x, v):
+    """Spring + dashpot forces [N] on every vertex, (3, n, m)."""
+    n, m = cfg.n, cfg.m
+    f = jnp.zeros_like(x)
+    for (di, dj, fam), rest in zip(GRID_DIRECTIONS, cloth.rest, strict=True):
+        a, b = _pair_slices(n, m, di, dj)
+        sa, sb = (slice(None),) + a, (slice(None),) + b
+        d = x[sb] - x[sa]
+        ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        inv = 1.0 / jnp.maximum(ln, 1e-12)
+        dv = v[sb] - v[sa]
+        s = cfg.stiffness(fam) * (ln - rest) + cfg.damping * (
+            dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv
+        fa = (s * inv)[None] * d  # force on the a end, towards b
+        # scatter-free accumulation: pad each contribution back to the full grid
+        pa = ((0, 0), (0, di), (max(0, -dj), max(0, dj)))
+        pb = ((0, 0), (di, 0), (max(0, dj), max(0, -dj)))
+        f = f + jnp.pad(fa, pa) - jnp.pad(fa, pb)
+    return f
+
+
+def grid_step(cfg: GridClothConfig, cloth: GridCloth, state: GridState) -> GridState:
+    """One semi-implicit Euler substep of the grid cloth."""
+    x, v = state.x, state.v
+    f = grid_forces(cfg, cloth, x, v)
+    g = jnp.asarray(cfg.gravity, x.dtype).reshape(3, 1, 1)
+    v = v + cfg.dt * (f * (1.0 / cfg.mass) + g)
+    x = x + cfg.dt * v
+    if cfg.ground is not None:
+        below = x[2] < cfg.ground
+        z = jnp.where(below, jnp.asarray(cfg.ground, x.dtype), x[2])
+        vz = jnp.where(below, jnp.maximum(v[2], 0.0), v[2])
+        x = jnp.stack([x[0], x[1], z])
+        v = jnp.stack([v[0], v[1], vz])
+    return GridState(x, v)
+
+
+def grid_simulate(cfg: GridClothConfig, cloth: GridCloth, state: GridState, n_steps: int,
+                  unroll: int = 1) -> GridState:
+    """Run ``n_steps`` substeps as one ``lax.scan`` (``unroll`` substeps per loop body)."""
+    def body(s, _):
+        return grid_step(cfg, cloth, s), None
+    state, _ = jax.lax.scan(body, state, None, length=n_steps, unroll=unroll)
+    return state
+
+
+def cloth_drop_scene(n: int = 64, dt: float = 1e-4, dtype=jnp.float32):
+    """The peers' standard cloth-drop scene (``bench/peers/common.py: ClothParams``) with
+    the peers' y-up mapped to z-up: returns ``(cfg, cloth, state)``.
+
+    A 1 m x 1 m sheet of n x n vertices and 1 kg, k_struct = k_shear = 1000 N/m,
+    k_bend = 200 N/m (two apart), dashpot 0.02 N s/m, gravity 9.8 m/s^2, ground clamp at
+    0; the sheet starts at rest, tilted from 0.02 m to 0.08 m above the ground along its
+    first axis. Rest lengths are those of the tilted initial state.
+    """
+    npdt = np.dtype(jnp.dtype(dtype).name)
+    u = np.linspace(0.0, 1.0, n, dtype=np.float32)
+    ii, jj = np.meshgrid(u, u, indexing="ij")
+    # peers: (x, y_up, z) = (ii, 0.02 + 0.06 ii, jj); here (x, y, z_up) = (ii, jj, height)
+    x0 = np.stack([ii, jj, (np.float32(0.02) + np.float32(0.06) * ii)], -1).astype(np.float32)
+    x0 = x0.reshape(n * n, 3)
+    cloth = grid_rest_lengths(x0, n, n)
+    cloth = GridCloth(tuple(r.astype(dtype) for r in cloth.rest))
+    cfg = GridClothConfig(n=n, m=n, dt=dt, mass=1.0 / (n * n))
+    cfg.check_stable()
+    x = from_vertices(x0.astype(npdt), n, n)
+    state = GridState(x, jnp.zeros_like(x))
+    return cfg, cloth, state
