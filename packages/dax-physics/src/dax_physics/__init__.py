@@ -3,6 +3,7 @@
 from importlib.metadata import PackageNotFoundError, version
 
 from . import cloth, colliders, materials, mpm, sampling
+from ._pytree import pytree_dataclass, static_field
 from .colliders import ColliderSpec, ColliderState
 from .materials import Material, MaterialParams, dough, rope, tofu, water
 from .mpm import (
@@ -24,8 +25,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0+unknown"
 
 __all__ = [
-    "ColliderSpec", "ColliderState", "cloth", "MPMConfig", "MPMState", "Material", "MaterialParams",
-    "check_state", "colliders", "dough", "grasp", "init_state", "materials", "max_stable_dt",
-    "mpm", "release", "rollout", "rope", "sampling", "set_collider_velocity", "substep", "tofu",
-    "water",
+    "ColliderSpec", "ColliderState", "MPMConfig", "MPMState", "Material", "MaterialParams",
+    "check_state", "cloth", "colliders", "dough", "grasp", "init_state", "materials",
+    "max_stable_dt", "mpm", "pytree_dataclass", "release", "rollout", "rope", "sampling",
+    "set_collider_velocity", "static_field", "substep", "tofu", "water",
 ]

@@ -88,14 +88,19 @@ class Material:
         """(mu, lambda) [Pa]; for a fluid mu = 0 and lambda = K."""
         if self.kind == "fluid":
             return 0.0, self.bulk_modulus
-        E, nu = self.youngs_modulus, self.poisson_ratio
-        return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+        return lame_parameters(self.youngs_modulus, self.poisson_ratio)
 
     @property
     def wave_speed(self) -> float:
         """Fastest (P-)wave speed [m/s]: sqrt((lambda + 2 mu) / rho), sqrt(K / rho) for fluid."""
         mu, lam = self.lame
         return math.sqrt((lam + 2 * mu) / self.density)
+
+
+def lame_parameters(E, nu):
+    """Lame parameters (mu, lambda) [Pa] from Young's modulus E [Pa] and Poisson's ratio nu
+    (works on floats and traced arrays)."""
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 # Convenient presets (SI). Values are representative, not measurements of a product.
@@ -153,6 +158,5 @@ class MaterialParams:
 
     def with_youngs_modulus(self, index: int, E, nu) -> MaterialParams:
         """Replace material ``index``'s (mu, lam) from E [Pa] and nu [-] (E may be traced)."""
-        mu = E / (2 * (1 + nu))
-        lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+        mu, lam = lame_parameters(E, nu)
         return self.replace(mu=self.mu.at[index].set(mu), lam=self.lam.at[index].set(lam))

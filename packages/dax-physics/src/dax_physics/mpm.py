@@ -374,7 +374,7 @@ def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, F
         return [[a[i][j] + jnp.where(sel, b[i][j], 0.0) for j in range(3)] for i in range(3)]
 
     single = len(kinds) == 1
-    mat_kind = jnp.asarray([KIND_CODE[m.kind] for m in cfg.materials], jnp.int32)[state.mat]
+    mat_kind = _particle_kinds(cfg, state.mat)
 
     if "fluid" in kinds:
         J = state.J
@@ -407,6 +407,11 @@ def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, F
 
 
 KIND_CODE = {"fluid": 0, "elastic": 1, "plastic": 2}
+
+
+def _particle_kinds(cfg: MPMConfig, mat):
+    """Per-particle material kind code (see :data:`KIND_CODE`) from material ids."""
+    return jnp.asarray([KIND_CODE[m.kind] for m in cfg.materials], jnp.int32)[mat]
 
 
 def _return_map(params: MaterialParams, mat, b):
@@ -532,9 +537,7 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
         f = [[(1.0 if i == j else 0.0) + dt * new_C[i][j] for j in range(3)] for i in range(3)]
         Fn = _mul(f, Fm)
         if "plastic" in kinds:
-            mat_kind = jnp.asarray([KIND_CODE[mm.kind] for mm in cfg.materials],
-                                   jnp.int32)[state.mat]
-            is_pl = mat_kind == KIND_CODE["plastic"]
+            is_pl = _particle_kinds(cfg, state.mat) == KIND_CODE["plastic"]
             b_trial = _mul(Fn, _transpose(f))  # f b f^T
             b_new = _return_map(params, state.mat, b_trial)
             Fn = [[jnp.where(is_pl, b_new[i][j], Fn[i][j]) for j in range(3)]
@@ -542,8 +545,7 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
         if "fluid" in kinds:
             # Fluids use J only; keep their F at identity so a long mixture rollout never
             # polar-decomposes an ill-conditioned, unused F (whose gradient could overflow).
-            is_fl = jnp.asarray([KIND_CODE[mm.kind] for mm in cfg.materials],
-                                jnp.int32)[state.mat] == KIND_CODE["fluid"]
+            is_fl = _particle_kinds(cfg, state.mat) == KIND_CODE["fluid"]
             Fn = [[jnp.where(is_fl, 1.0 if i == j else 0.0, Fn[i][j]) for j in range(3)]
                   for i in range(3)]
         new_F = _stack3(Fn)
@@ -669,5 +671,5 @@ def strain_energy_density(cfg: MPMConfig, params: MaterialParams, state: MPMStat
     tr = (Fm[0][0] + Fm[1][1] + Fm[2][2]) * J2 ** (-1.0 / 3.0)
     kappa = lam + 2.0 / 3.0 * mu
     e_pl = 0.5 * mu * (tr - 3.0) + 0.25 * kappa * (J2 - 1.0 - jnp.log(J2))
-    kind = jnp.asarray([KIND_CODE[m.kind] for m in cfg.materials], jnp.int32)[state.mat]
+    kind = _particle_kinds(cfg, state.mat)
     return jnp.where(kind == 0, e_fl, jnp.where(kind == 1, e_el, e_pl))

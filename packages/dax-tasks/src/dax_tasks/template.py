@@ -29,8 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from dax_physics import pytree_dataclass
+
 from . import rewards
-from ._pytree import pytree_dataclass
 
 ACTION_KINDS = ("push", "pick_place", "velocity")
 
