@@ -70,7 +70,7 @@ class ClothConfig:
     self_candidates: int = 8
     self_exclude: float = 2.0
     strain_limit: float | None = None
-    strain_iterations: int = 2
+    strain_iterations: int = 4
     colliders: tuple = ()
 
     def __post_init__(self):
@@ -379,11 +379,16 @@ def _table_contact(cfg: ClothConfig, x, v, free):
 
 
 def _strain_limit(cfg: ClothConfig, cloth: Cloth, x, inv_w):
-    """Jacobi projection of structural springs longer than (1 + strain_limit) rest."""
+    """Jacobi projection of structural springs longer than (1 + strain_limit) rest
+    (continuous in the positions, so it keeps gradients and vmap-vs-loop results stable)."""
     i, j = cloth.pairs[:, 0], cloth.pairs[:, 1]
     lmax = (1.0 + cfg.strain_limit) * cloth.rest_length
     struct = cloth.kind == 0
     V = x.shape[0]
+    # Jacobi averaging over the vertex's structural degree (not over the currently violated
+    # springs, which would make the result jump when a spring crosses the limit)
+    sf = struct.astype(x.dtype)
+    cnt = jax.ops.segment_sum(sf, i, V) + jax.ops.segment_sum(sf, j, V)
     for _ in range(cfg.strain_iterations):
         d = x[j] - x[i]
         ln = _safe_norm(d)
@@ -391,8 +396,6 @@ def _strain_limit(cfg: ClothConfig, cloth: Cloth, x, inv_w):
         wsum = inv_w[i] + inv_w[j]
         corr = jnp.where(over & (wsum > 0), (ln - lmax) / jnp.where(wsum > 0, wsum, 1.0), 0.0)
         dd = (corr / ln)[:, None] * d
-        cnt = (jax.ops.segment_sum(over.astype(x.dtype), i, V)
-               + jax.ops.segment_sum(over.astype(x.dtype), j, V))
         dx = (jax.ops.segment_sum(dd * inv_w[i][:, None], i, V)
               - jax.ops.segment_sum(dd * inv_w[j][:, None], j, V))
         x = x + dx / jnp.maximum(cnt, 1.0)[:, None]

@@ -1,0 +1,279 @@
+"""Mass-spring cloth: meshes, springs, stability, contact, friction, self-collision."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import dax_physics.cloth as c
+from dax_physics.colliders import ColliderSpec, ColliderState
+
+
+def _peers_like_cloth(n, dtype=jnp.float32):
+    """A general-mesh Cloth with the grid scene's 12-neighbour springs (for comparison)."""
+    cfg, gcloth, gstate = c.cloth_drop_scene(n)
+    x0 = np.asarray(c.grid.to_vertices(gstate.x))
+    pairs, rest, k = [], [], []
+    for (di, dj, fam), _r in zip(c.grid.GRID_DIRECTIONS, gcloth.rest, strict=True):
+        a, b = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        a2, b2 = a + di, b + dj
+        ok = (a2 < n) & (b2 >= 0) & (b2 < n)
+        pairs.append(np.stack([(a * n + b)[ok], (a2 * n + b2)[ok]], 1))
+        rest.append(np.linalg.norm(x0[pairs[-1][:, 1]] - x0[pairs[-1][:, 0]], axis=1))
+        k.append(np.full(ok.sum(), cfg.stiffness(fam)))
+    pairs = np.concatenate(pairs)
+    V = n * n
+    cl = c.Cloth(rest_pos=jnp.asarray(x0, dtype), mass=jnp.full((V,), cfg.mass, dtype),
+                 area=jnp.full((V,), 1.0 / V, dtype), pairs=jnp.asarray(pairs, jnp.int32),
+                 kind=jnp.zeros(len(pairs), jnp.int8),
+                 rest_length=jnp.asarray(np.concatenate(rest), dtype),
+                 stiffness=jnp.asarray(np.concatenate(k), dtype),
+                 damping=jnp.full((len(pairs),), cfg.damping, dtype),
+                 faces=jnp.zeros((1, 3), jnp.int32))
+    return cfg, gcloth, gstate, cl
+
+
+def test_grid_stencil_path_matches_general_mesh_solver():
+    n, steps = 12, 400
+    gcfg, gcloth, gstate, cl = _peers_like_cloth(n)
+    cfg = c.ClothConfig(dt=gcfg.dt, gravity=gcfg.gravity, table_height=0.0)
+    st = c.ClothState.create(cl)
+    got = jax.jit(lambda s: c.simulate(cfg, cl, s, steps))(st).x
+    want = c.grid.to_vertices(jax.jit(lambda s: c.grid_simulate(gcfg, gcloth, s, steps))(
+        gstate).x)
+    err = float(jnp.max(jnp.abs(got - want)))
+    assert err < 2e-6, f"expected grid and mesh solvers to agree to 2e-6 m, got max diff {err}"
+
+
+def test_cloth_drop_scene_reaches_reference_mean_height():
+    cfg, cloth, state = c.cloth_drop_scene(64)
+    out = jax.jit(lambda s: c.grid_simulate(cfg, cloth, s, 1000))(state)
+    h = float(jnp.mean(out.x[2]))
+    assert abs(h - 0.008108) < 1e-4, f"expected mean height 0.008108 +- 1e-4 m, got {h}"
+
+
+def test_unstable_dt_is_refused_with_largest_stable_dt():
+    cl = c.square_cloth(6, size=(0.2, 0.2), stretch=100.0)
+    dtmax = c.max_stable_dt(c.ClothConfig(), cl)
+    cfg = c.ClothConfig(dt=2 * dtmax)
+    with pytest.raises(ValueError, match=f"largest stable dt is {dtmax:.4g}"):
+        c.simulate(cfg, cl, c.ClothState.create(cl), 10)
+    with pytest.raises(ValueError, match="largest stable dt"):
+        c.GridClothConfig(n=8, m=8, dt=1e-3, mass=1e-4).check_stable()
+    # the bound is real: at the bound a perturbed cloth stays bounded, far above it explodes
+    rng = np.random.default_rng(0)
+    x = cl.rest_pos + 1e-3 * jnp.asarray(rng.normal(size=cl.rest_pos.shape), jnp.float32)
+
+    def run(dt):
+        cfg = c.ClothConfig(dt=dt, gravity=(0, 0, 0), table_height=None)
+        st = c.ClothState.create(cl, x=x)
+        step = jax.jit(lambda s: c.step(cfg, cl, s))
+        for _ in range(2000):
+            st = step(st)
+        d = st.x[cl.pairs[:, 1]] - st.x[cl.pairs[:, 0]]
+        return float(jnp.max(jnp.abs(jnp.linalg.norm(d, axis=1) / cl.rest_length - 1)))
+    ok, bad = run(dtmax), run(4 * dtmax)
+    assert ok < 0.1, f"expected bounded strain at dt = dtmax, got max strain {ok}"
+    assert not bad < 10.0, f"expected dt = 4 dtmax to blow up, got max strain {bad}"
+
+
+def _curtain(n):
+    v, f = c.square_mesh(n, size=(0.3, 0.3))
+    v = np.stack([v[:, 0], np.zeros(len(v)), v[:, 1]], 1)  # vertical sheet, top edge z=0.3
+    cl = c.make_cloth(v, f, density=0.2, stretch=20.0, bend=0.5)
+    cfg = c.ClothConfig(dt=c.max_stable_dt(c.ClothConfig(air_drag=2.0), cl), air_drag=2.0,
+                        table_height=None)
+    st = c.ClothState.create(cl, n_grippers=2)
+    top = np.flatnonzero(np.isclose(v[:, 2], 0.3))
+    st = c.grasp(st, 0, v[top[0]], 0.0501)
+    st = c.grasp(st, 1, v[top[-1]], 0.0501)
+    return cfg, cl, st, top[len(top) // 2]
+
+
+def test_pinned_cloth_sag_is_static_converges_and_energy_does_not_grow():
+    sags = []
+    for n in (7, 13, 25):
+        cfg, cl, st, mid = _curtain(n)
+        k = int(0.25 / cfg.dt)
+        run = jax.jit(lambda s, cfg=cfg, cl=cl, k=k: c.simulate(cfg, cl, s, k))
+        energies = [float(c.energy(cfg, cl, st))]
+        for _ in range(8):  # 2 s
+            st = run(st)
+            energies.append(float(c.energy(cfg, cl, st)))
+        s1 = 0.3 - float(st.x[mid, 2])
+        s2 = 0.3 - float(run(run(st)).x[mid, 2])
+        assert abs(s2 - s1) < 0.01 * s1, f"n={n}: expected a static sag, got {s1} then {s2}"
+        growth = max(b - a for a, b in zip(energies, energies[1:], strict=False))
+        assert growth <= 1e-7, f"n={n}: expected energy not to grow, got +{growth} J"
+        sags.append(s1)
+    d1, d2 = abs(sags[1] - sags[0]), abs(sags[2] - sags[1])
+    assert d2 < d1, f"expected the sag to converge under refinement, got sags {sags}"
+    assert d2 < 0.05 * sags[2], f"expected n=13 and n=25 sags within 5 %, got {sags}"
+
+
+def test_dropped_cloth_comes_to_rest_flat_on_table():
+    cl = c.square_cloth(10, size=(0.3, 0.3), height=0.05, stretch=50.0, damping=0.02)
+    cfg = c.ClothConfig(dt=2e-4, friction_static=0.5, air_drag=0.5)
+    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 5000))(c.ClothState.create(cl))
+    z = np.asarray(out.x[:, 2])
+    vmax = float(jnp.max(jnp.abs(out.v)))
+    assert z.min() >= 0.0 and z.max() < 1e-4, f"expected z in [0, 1e-4] m, got [{z.min()}, " \
+                                               f"{z.max()}]"
+    assert vmax < 1e-3, f"expected rest (|v| < 1e-3 m/s), got {vmax}"
+    span = np.ptp(np.asarray(out.x[:, 0]))
+    assert abs(span - 0.3) < 0.01, f"expected a flat 0.3 m wide cloth, got width {span}"
+
+
+@pytest.mark.parametrize("ratio", [0.8, 1.2])
+def test_table_friction_holds_below_and_slides_above_threshold(ratio):
+    mu_s, mu_d, g = 0.5, 0.4, 9.81
+    ax = ratio * mu_s * g  # horizontal load as a tilted gravity
+    cl = c.square_cloth(6, size=(0.2, 0.2), stretch=50.0)
+    cfg = c.ClothConfig(dt=2e-4, gravity=(ax, 0.0, -g), friction_static=mu_s,
+                        friction_dynamic=mu_d)
+    T = 0.5
+    out = jax.jit(lambda s: c.simulate(cfg, cl, s, int(T / cfg.dt)))(c.ClothState.create(cl))
+    dx = float(jnp.mean(out.x[:, 0] - cl.rest_pos[:, 0]))
+    if ratio < 1:
+        assert abs(dx) < 1e-6, f"expected the cloth to stick (dx = 0), got dx = {dx} m"
+    else:
+        want = 0.5 * (ax - mu_d * g) * T ** 2
+        assert abs(dx - want) < 0.02 * want, f"expected sliding dx = {want} m, got {dx} m"
+
+
+def test_spatial_hash_finds_every_close_pair():
+    rng = np.random.default_rng(1)
+    x = jnp.asarray(rng.uniform(0, 0.1, size=(300, 3)), jnp.float32)
+    cfg = c.ClothConfig(thickness=0.012, self_candidates=16)
+    idx, valid = c.self_collision_candidates(cfg, x)
+    found = {(i, int(j)) for i in range(300) for j, ok in zip(np.asarray(idx[i]),
+                                                               np.asarray(valid[i]),
+                                                               strict=True) if ok}
+    d = np.linalg.norm(np.asarray(x)[:, None] - np.asarray(x)[None], axis=-1)
+    want = {(i, j) for i, j in zip(*np.nonzero(d < 0.012), strict=True) if i != j}
+    missing = want - found
+    assert not missing, f"expected all {len(want)} pairs within h, missing {len(missing)}"
+
+
+def test_strain_limit_bounds_structural_stretch():
+    cl = c.square_cloth(8, size=(0.2, 0.2), stretch=20.0)
+    i, j = np.asarray(cl.pairs).T
+    struct = np.asarray(cl.kind) == 0
+
+    def max_strain(limit):
+        cfg = c.ClothConfig(dt=2e-4, strain_limit=limit, table_height=None)
+        st = c.grasp(c.ClothState.create(cl), 0, (0.0, 0.0, 0.0), 0.01)
+        out = jax.jit(lambda s: c.move_gripper(cfg, cl, s, 0, (-0.1, -0.1, 0.05), 1500))(st)
+        x = np.asarray(out.x)
+        ln = np.linalg.norm(x[j] - x[i], axis=1)
+        return float(np.max(ln[struct] / np.asarray(cl.rest_length)[struct] - 1))
+    free, limited = max_strain(None), max_strain(0.1)
+    assert free > 0.15, f"expected the unlimited pull to stretch > 15 %, got {free}"
+    assert limited < 0.115, f"expected strain <= 0.1 (+tol) with the limit, got {limited}"
+
+
+def test_cloth_drapes_over_sphere_collider():
+    cl = c.square_cloth(12, size=(0.4, 0.4), origin=(-0.2, -0.2), height=0.12, stretch=50.0)
+    spec = ColliderSpec("sphere", (0.08,), mode="separate", friction=0.5)
+    cfg = c.ClothConfig(dt=2e-4, colliders=(spec,), air_drag=0.5)
+    st = c.ClothState.create(cl, colliders=ColliderState.create([0.0, 0.0, 0.0]))
+    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 3000))(st)
+    r = np.linalg.norm(np.asarray(out.x), axis=1)
+    zc = float(out.x[np.argmin(np.linalg.norm(np.asarray(out.x[:, :2]), axis=1)), 2])
+    assert r.min() > 0.08 - 0.005, f"expected no vertex deep inside the sphere, got r {r.min()}"
+    assert abs(zc - 0.08) < 0.01, f"expected the centre resting on top (0.08 m), got {zc}"
+    assert float(out.x[:, 2].min()) < 0.05, "expected the edges to hang below the top, got " \
+                                            f"min z {float(out.x[:, 2].min())}"
+
+
+def test_tshirt_mesh_is_valid_with_sleeves_and_simulates():
+    v, f = c.tshirt_mesh(spacing=0.03)
+    c.validate_mesh(v, f)
+    body = c.tshirt_outline()
+    width = np.ptp(v[:, 0])
+    assert width > 0.5 + 0.3, f"expected sleeves to widen the shirt beyond 0.8 m, got {width}"
+    assert np.ptp(body[:, 0]) - width < 0.05, f"expected the mesh to span the outline, got " \
+                                              f"{width} vs {np.ptp(body[:, 0])}"
+    cl = c.tshirt_cloth(spacing=0.03, height=0.02, stretch=50.0)
+    cfg = c.ClothConfig(dt=2e-4)
+    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 500))(c.ClothState.create(cl))
+    assert bool(jnp.all(jnp.isfinite(out.x))), "expected finite positions, got NaN/inf"
+
+
+def test_meshio_roundtrip(tmp_path):
+    pytest.importorskip("meshio")
+    v, f = c.square_mesh(5, size=(0.2, 0.3))
+    path = tmp_path / "cloth.obj"
+    c.save_mesh(path, v, f)
+    cl = c.mesh_cloth(path)
+    ref = c.make_cloth(v, f)
+    assert cl.n_vertices == 25, f"expected 25 vertices, got {cl.n_vertices}"
+    np.testing.assert_allclose(np.sort(np.asarray(cl.stiffness)),
+                               np.sort(np.asarray(ref.stiffness)), rtol=1e-5,
+                               err_msg="expected the same springs after the roundtrip")
+
+
+def test_degenerate_and_non_manifold_meshes_are_rejected():
+    v, f = c.square_mesh(3)
+    bad = v.copy()
+    tri = f[0]
+    bad[tri[2]] = 0.5 * (bad[tri[0]] + bad[tri[1]])  # third vertex on the opposite edge
+    with pytest.raises(c.MeshError, match="degenerate triangle"):
+        c.make_cloth(bad, f)
+    with pytest.raises(c.MeshError, match="repeated vertex"):
+        c.make_cloth(v, np.array([[0, 1, 1]]))
+    v2 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1.0]])
+    f2 = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])
+    with pytest.raises(c.MeshError, match="non-manifold"):
+        c.make_cloth(v2, f2)
+
+
+def test_nan_pick_point_raises_eagerly_and_is_a_noop_under_jit():
+    cl = c.square_cloth(5, size=(0.2, 0.2))
+    st = c.ClothState.create(cl)
+    with pytest.raises(ValueError, match="finite"):
+        c.grasp(st, 0, (np.nan, 0.0, 0.0), 0.05)
+    out = jax.jit(lambda p: c.grasp(st, 0, p, 0.05, snap=True))(jnp.array([jnp.nan, 0.0, 0.0]))
+    assert float(out.grip.sum()) == 0.0, f"expected no grasp, got {float(out.grip.sum())}"
+    assert bool(jnp.all(jnp.isfinite(out.gripper_pos))), f"expected finite gripper, got " \
+                                                         f"{out.gripper_pos}"
+
+
+def test_pick_with_nothing_in_reach_is_a_noop_and_snap_always_grasps():
+    cl = c.square_cloth(5, size=(0.2, 0.2), stretch=50.0)
+    cfg = c.ClothConfig(dt=2e-4)
+    st = c.ClothState.create(cl)
+    sc = c.PickPlace(approach_steps=20, lift_steps=50, move_steps=50, lower_steps=50,
+                     settle_steps=20, radius=0.01, snap=False)
+    far = jnp.array([0.5, 0.5, 0.0])
+    out = c.pick_and_place(cfg, cl, st, far, jnp.array([0.1, 0.1, 0.0]), sc)
+    ref = c.simulate(cfg, cl, st, sc.n_steps)
+    diff = float(jnp.max(jnp.abs(out.x - ref.x)))
+    assert diff == 0.0, f"expected an untouched cloth (diff 0), got {diff}"
+    snapped = c.grasp(st, 0, far, 0.01, snap=True)
+    assert float(snapped.grip.sum()) == 1.0, f"expected 1 vertex grasped, got " \
+                                             f"{float(snapped.grip.sum())}"
+
+
+def test_several_grippers_hold_different_vertices():
+    cl = c.square_cloth(5, size=(0.2, 0.2), stretch=50.0)
+    cfg = c.ClothConfig(dt=2e-4, table_height=None)
+    st = c.ClothState.create(cl, n_grippers=2)
+    st = c.grasp(st, 0, (0.0, 0.0, 0.0), 0.01)
+    st = c.grasp(st, 1, (0.2, 0.0, 0.0), 0.01)
+    st = st.replace(gripper_vel=jnp.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1]]))
+    out = c.simulate(cfg, cl, st, 1000)
+    got = (float(out.x[0, 2]), float(out.x[20, 2]))
+    assert abs(got[0] - 0.02) < 1e-5 and abs(got[1] + 0.02) < 1e-5, \
+        f"expected held corners at z = (0.02, -0.02) m, got {got}"
+
+
+def test_config_is_hashable_and_state_is_a_pytree():
+    cfg = c.ClothConfig(colliders=(ColliderSpec("sphere", (0.1,)),))
+    assert hash(cfg) == hash(dataclasses.replace(cfg)), "expected equal hashes"
+    cl = c.square_cloth(3)
+    st = c.ClothState.create(cl)
+    leaves = jax.tree_util.tree_leaves(st)
+    assert len(leaves) == 10, f"expected 10 array leaves in ClothState, got {len(leaves)}"
