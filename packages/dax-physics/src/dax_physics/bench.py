@@ -7,6 +7,8 @@ never asserted in tests).
     python -m dax_physics.bench active-region --json
     python -m dax_physics.bench mpm-study --out bench_out --json
     python -m dax_physics.bench cloth-drop --n 64 --substeps 1000 --json
+    python -m dax_physics.bench cloth-fold --json
+    python -m dax_physics.bench cloth-sag-study --out bench_out --json
 
 Throughputs are medians over repetitions after a warm-up run; compile time is measured by
 lowering and compiling ahead of time. Set ``JAX_COMPILATION_CACHE_DIR`` off (the default)
@@ -322,29 +324,6 @@ def cmd_mpm_study(args):
     _emit(record, args.json)
 
 
-# --------------------------------------------------------------------------- cloth drop
-
-def cmd_cloth_drop(args):
-    """The peers' cloth-drop scene (64x64, k 1000/1000/200, dashpot 0.02, dt 1e-4, ground
-    clamp, no friction, no self-collision) on the grid-stencil cloth path."""
-    from .cloth import grid as gc
-
-    cfg, cloth, state = gc.cloth_drop_scene(args.n)
-    n = args.substeps
-    t0 = time.perf_counter()
-    compiled = jax.jit(lambda c, s: gc.grid_simulate(cfg, c, s, n)).lower(cloth, state).compile()
-    compile_s = time.perf_counter() - t0
-    out = compiled(cloth, state)
-    jax.block_until_ready(out)
-    med, times = _median_time(lambda: jax.block_until_ready(compiled(cloth, state)),
-                              args.reps, args.min_time)
-    z = np.asarray(out.x[2])
-    _emit(dict(bench="cloth-drop", n=args.n, substeps=n, substeps_per_s=n / med,
-               vertex_substeps_per_s=n * args.n ** 2 / med, compile_s=compile_s,
-               reps=len(times), mean_height=float(z.astype(np.float64).mean()),
-               finite=bool(np.isfinite(np.asarray(out.x)).all())), args.json)
-
-
 # --------------------------------------------------------------------------- CLI
 
 def build_parser() -> argparse.ArgumentParser:
@@ -391,13 +370,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_mpm_study)
 
-    c = sub.add_parser("cloth-drop", help="the peers' 64x64 cloth-drop scene: throughput")
-    c.add_argument("--n", type=int, default=64)
-    c.add_argument("--substeps", type=int, default=1000)
-    c.add_argument("--reps", type=int, default=7)
-    c.add_argument("--min-time", type=float, default=2.0)
-    c.add_argument("--json", action="store_true")
-    c.set_defaults(func=cmd_cloth_drop)
+    from . import bench_cloth  # cloth-drop, cloth-fold, cloth-sag-study
+
+    bench_cloth.add_subparsers(sub)
     return p
 
 

@@ -1,0 +1,223 @@
+"""Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-fold``, ``cloth-sag-study``.
+
+``dax_physics.bench`` registers these with :func:`add_subparsers`; standalone use:
+``python -m dax_physics.bench_cloth cloth-drop --n 64 --substeps 1000 --json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import cloth as c
+
+
+def _peak_rss_mb() -> float:
+    try:
+        import psutil  # noqa: F401  (ru_maxrss is the same figure on Linux)
+    except ImportError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _emit(rec, as_json=True):
+    print(json.dumps(rec) if as_json else "\n".join(f"{k}: {v}" for k, v in rec.items()),
+          flush=True)
+
+
+def _median_time(fn, reps):
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts), ts
+
+
+# ----------------------------------------------------------------------------- cloth-drop
+
+def run_cloth_drop(args):
+    cfg, cloth, state = c.cloth_drop_scene(args.n, dt=args.dt)
+    steps = args.substeps
+    sim = jax.jit(lambda s: c.grid_simulate(cfg, cloth, s, steps, unroll=args.unroll))
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(sim(state))
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(sim(state))  # warm-up
+    med, ts = _median_time(lambda: sim(state), args.reps)
+    x = np.asarray(out.x)
+    rec = dict(bench="cloth-drop", impl="dax-jax-stencil", n=args.n, substeps=steps,
+               dt=cfg.dt, reps=args.reps, substeps_per_s=steps / med,
+               substeps_per_s_runs=[steps / t for t in ts], compile_s=compile_s,
+               mean_height=float(x[2].mean()), min_height=float(x[2].min()),
+               reference_mean_height=0.008108, finite=bool(np.isfinite(x).all()),
+               backend=jax.default_backend(), jax=jax.__version__, threads=os.cpu_count())
+    _emit(rec, args.json)
+    return rec
+
+
+# ----------------------------------------------------------------------------- cloth-fold
+
+def fold_scene(n: int = 32, size: float = 0.3, dtype=jnp.float32):
+    """A cloth on a table folded corner onto (near) the opposite corner with
+    self-collision; returns ``(cfg, cloth, state, schedule, pick, place)``."""
+    sp = size / (n - 1)
+    cl = c.square_cloth(n, size=(size, size), density=0.2, stretch=50.0, bend=0.2,
+                        damping=0.02, dtype=dtype)
+    cfg = c.ClothConfig(dt=1.0, friction_static=1.0, friction_dynamic=0.8, thickness=sp,
+                        self_stiffness=50.0, self_damping=0.01, self_friction=0.005,
+                        air_drag=0.5, strain_limit=0.05)
+    import dataclasses
+    cfg = dataclasses.replace(cfg, dt=float(np.floor(c.max_stable_dt(cfg, cl) * 1e6) / 1e6))
+    t_scale = 1.0  # seconds of motion per phase unit
+    n_of = lambda t: int(round(t / cfg.dt))  # noqa: E731
+    sc = c.PickPlace(approach_steps=n_of(0.02 * t_scale), lift_steps=n_of(0.15 * t_scale),
+                     move_steps=n_of(0.375 * t_scale), lower_steps=n_of(0.15 * t_scale),
+                     settle_steps=n_of(0.375 * t_scale), lift_height=0.08, radius=0.5 * sp,
+                     checkpoint_every=100)
+    pick = jnp.zeros(3, dtype)
+    place = jnp.asarray([0.9 * size, 0.9 * size, sp], dtype)
+    return cfg, cl, c.ClothState.create(cl), sc, pick, place
+
+
+def run_cloth_fold(args):
+    cfg, cl, st, sc, pick, place = fold_scene(args.n)
+    goal = cl.rest_pos
+
+    def loss(q):
+        out = c.pick_and_place(cfg, cl, st, pick, q, sc)
+        return jnp.mean(jnp.sum((out.x - goal) ** 2, -1))
+    fwd = jax.jit(loss)
+    bwd = jax.jit(jax.value_and_grad(loss))
+    t0 = time.perf_counter()
+    jax.block_until_ready(fwd(place))
+    c_fwd = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    val, grad = jax.block_until_ready(bwd(place))
+    c_bwd = time.perf_counter() - t0
+    t_fwd, _ = _median_time(lambda: fwd(place), args.reps)
+    t_bwd, _ = _median_time(lambda: bwd(place), args.reps)
+    rec = dict(bench="cloth-fold", n=args.n, vertices=cl.n_vertices, substeps=sc.n_steps,
+               dt=cfg.dt, self_collision=True, checkpoint_every=sc.checkpoint_every,
+               forward_s=t_fwd, forward_backward_s=t_bwd,
+               substeps_per_s_forward=sc.n_steps / t_fwd, compile_forward_s=c_fwd,
+               compile_forward_backward_s=c_bwd, loss=float(val),
+               grad_place=np.asarray(grad).tolist(),
+               finite=bool(np.isfinite(np.asarray(grad)).all()),
+               peak_rss_mb=_peak_rss_mb(), reps=args.reps)
+    _emit(rec, args.json)
+    return rec
+
+
+# ----------------------------------------------------------------------------- sag study
+
+def _curtain_sag(n, dt_frac, size=0.3, t_end=2.0):
+    """Hanging-cloth sag [m]: a vertical size x size sheet held over 0.05 m at both top
+    corners, sag of the top edge's midpoint after ``t_end`` s (static by then)."""
+    v, f = c.square_mesh(n, size=(size, size))
+    v = np.stack([v[:, 0], np.zeros(len(v)), v[:, 1]], 1)
+    cl = c.make_cloth(v, f, density=0.2, stretch=20.0, bend=0.5)
+    base = c.ClothConfig(air_drag=2.0, table_height=None)
+    dtmax = c.max_stable_dt(base, cl)
+    import dataclasses
+    cfg = dataclasses.replace(base, dt=dt_frac * dtmax)
+    st = c.ClothState.create(cl, n_grippers=2)
+    top = np.flatnonzero(np.isclose(v[:, 2], size))
+    st = c.grasp(st, 0, v[top[0]], 0.0501)
+    st = c.grasp(st, 1, v[top[-1]], 0.0501)
+    steps = int(round(t_end / cfg.dt))
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(jax.jit(lambda s: c.simulate(cfg, cl, s, steps))(st))
+    wall = time.perf_counter() - t0
+    return dict(n=n, dt=cfg.dt, dt_fraction=dt_frac, substeps=steps,
+                sag=float(size - out.x[top[len(top) // 2], 2]), wall_s=wall)
+
+
+def run_sag_study(args):
+    ns = [int(s) for s in args.ns.split(",")]
+    fracs = [float(s) for s in args.dt_fractions.split(",")]
+    ref = _curtain_sag(args.n_ref, min(fracs))
+    rows = []
+    for n in ns:
+        for fr in fracs:
+            r = _curtain_sag(n, fr)
+            r["abs_error"] = abs(r["sag"] - ref["sag"])
+            r["rel_error"] = r["abs_error"] / ref["sag"]
+            rows.append(r)
+    rec = dict(bench="cloth-sag-study", reference=ref, rows=rows)
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "cloth_sag_study.json"), "w") as fh:
+        json.dump(rec, fh, indent=1)
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+        for fr in fracs:
+            rs = [r for r in rows if r["dt_fraction"] == fr]
+            ax[0].loglog([r["n"] for r in rs], [max(r["rel_error"], 1e-6) for r in rs], "o-",
+                         label=f"dt = {fr} x dt_max")
+            ax[1].loglog([r["wall_s"] for r in rs], [max(r["rel_error"], 1e-6) for r in rs],
+                         "o-", label=f"dt = {fr} x dt_max")
+        ax[0].set_xlabel("vertices per side")
+        ax[0].set_ylabel(f"relative sag error vs n = {args.n_ref}")
+        ax[1].set_xlabel("wall time for 2 s simulated (incl. compile) [s]")
+        for a in ax:
+            a.legend()
+            a.grid(True, which="both", alpha=0.3)
+        fig.suptitle("hanging-cloth sag: resolution and substep vs error")
+        fig.tight_layout()
+        fig.savefig(os.path.join(args.out, "cloth_sag_study.png"), dpi=100)
+        rec["chart"] = os.path.join(args.out, "cloth_sag_study.png")
+    except ImportError:
+        rec["chart"] = None
+    _emit(rec, args.json)
+    return rec
+
+
+# ----------------------------------------------------------------------------- CLI
+
+def add_subparsers(subparsers):
+    """Register ``cloth-drop``, ``cloth-fold`` and ``cloth-sag-study`` on an argparse
+    subparsers object; each sets ``func`` so the caller runs ``args.func(args)``."""
+    p = subparsers.add_parser("cloth-drop", help="peers' 64x64 cloth-drop scene (stencil path)")
+    p.add_argument("--n", type=int, default=64)
+    p.add_argument("--substeps", type=int, default=1000)
+    p.add_argument("--dt", type=float, default=1e-4)
+    p.add_argument("--reps", type=int, default=7)
+    p.add_argument("--unroll", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run_cloth_drop)
+
+    p = subparsers.add_parser("cloth-fold", help="pick-and-place fold with self-collision")
+    p.add_argument("--n", type=int, default=32)
+    p.add_argument("--reps", type=int, default=3)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run_cloth_fold)
+
+    p = subparsers.add_parser("cloth-sag-study", help="resolution/substep vs sag error")
+    p.add_argument("--ns", default="7,13,25")
+    p.add_argument("--n-ref", type=int, default=49)
+    p.add_argument("--dt-fractions", default="0.25,1.0")
+    p.add_argument("--out", default="bench_out")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run_sag_study)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m dax_physics.bench_cloth")
+    add_subparsers(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    args.func(args)
+
+
+if __name__ == "__main__":
+    main()
