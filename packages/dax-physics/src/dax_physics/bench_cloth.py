@@ -21,10 +21,7 @@ from . import cloth as c
 
 
 def _peak_rss_mb() -> float:
-    try:
-        import psutil  # noqa: F401  (ru_maxrss is the same figure on Linux)
-    except ImportError:
-        pass
+    """Peak resident set size of this process [MB] (Linux ru_maxrss is in kB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
