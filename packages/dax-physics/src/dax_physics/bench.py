@@ -35,13 +35,14 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _median_time(fn, reps: int, min_time: float):
-    """Median wall time [s] of ``fn()`` over at least ``reps`` calls and ``min_time`` s."""
+def _median_time(fn, reps: int, min_time: float = 0.0):
+    """Median wall time [s] of ``fn()`` (its result waited for) over at least ``reps`` calls
+    and ``min_time`` s; returns (median, all times)."""
     times = []
     start = time.perf_counter()
     while len(times) < reps or time.perf_counter() - start < min_time:
         t0 = time.perf_counter()
-        fn()
+        jax.block_until_ready(fn())
         times.append(time.perf_counter() - t0)
         if len(times) >= 50:
             break

@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
-import statistics
 import time
 
 import jax
@@ -18,26 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import cloth as c
-
-
-def _peak_rss_mb() -> float:
-    """Peak resident set size of this process [MB] (Linux ru_maxrss is in kB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def _emit(rec, as_json=True):
-    print(json.dumps(rec) if as_json else "\n".join(f"{k}: {v}" for k, v in rec.items()),
-          flush=True)
-
-
-def _median_time(fn, reps):
-    ts = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts), ts
-
+from .bench import _emit, _median_time, _peak_rss_mb
 
 # ----------------------------------------------------------------------------- cloth-drop
 
