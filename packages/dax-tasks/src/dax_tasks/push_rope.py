@@ -256,6 +256,11 @@ def expert_action(spec: TaskSpec, physics, goal_points):
     return jnp.clip(action, jnp.asarray(spec.action_low), jnp.asarray(spec.action_high))
 
 
+def expert(spec: TaskSpec, state):
+    """The template's expert hook: :func:`expert_action` on the episode state."""
+    return expert_action(spec, state.physics, state.goal)
+
+
 def object_points(spec: TaskSpec, physics):
     return physics.x
 
@@ -279,4 +284,4 @@ def _spec() -> TaskSpec:
 
 
 PUSH_ROPE = TaskDef(spec=_spec(), init=init, apply_action=apply_action, goal=goal,
-                    object_points=object_points, end_effector=end_effector)
+                    object_points=object_points, end_effector=end_effector, expert=expert)

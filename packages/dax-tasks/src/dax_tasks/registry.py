@@ -14,24 +14,44 @@ TASKS = (
     "fold_tshirt", "unfold_cloth1", "unfold_cloth3",
 )
 
-# Implemented tasks: name -> (module, TaskDef attribute). Imported on first use.
-_IMPLEMENTED = MappingProxyType({"push_rope": ("dax_tasks.push_rope", "PUSH_ROPE")})
+# Where each task lives: name -> (module, TaskDef attribute). Imported on first use.
+_MODULES = MappingProxyType({
+    "pour_water": ("dax_tasks.pour", "POUR_WATER"),
+    "pour_soup": ("dax_tasks.pour", "POUR_SOUP"),
+    "push_rope": ("dax_tasks.push_rope", "PUSH_ROPE"),
+    "whip_rope": ("dax_tasks.whip_rope", "WHIP_ROPE"),
+    "fold_cloth1": ("dax_tasks.cloth_tasks", "FOLD_CLOTH1"),
+    "fold_cloth3": ("dax_tasks.cloth_tasks", "FOLD_CLOTH3"),
+    "fold_tshirt": ("dax_tasks.cloth_tasks", "FOLD_TSHIRT"),
+    "unfold_cloth1": ("dax_tasks.cloth_tasks", "UNFOLD_CLOTH1"),
+    "unfold_cloth3": ("dax_tasks.cloth_tasks", "UNFOLD_CLOTH3"),
+})
+
+
+def _implemented(name: str) -> bool:
+    module, attr = _MODULES[name]
+    try:
+        return hasattr(importlib.import_module(module), attr)
+    except ModuleNotFoundError as err:
+        if err.name != module:  # the task module exists but one of its imports does not
+            raise
+        return False
 
 
 def available() -> tuple:
     """The names of the tasks implemented in this version."""
-    return tuple(n for n in TASKS if n in _IMPLEMENTED)
+    return tuple(n for n in TASKS if _implemented(n))
 
 
 def get_definition(name: str) -> TaskDef:
     """The :class:`TaskDef` (default spec and functions) of task ``name``."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
-    if name not in _IMPLEMENTED:
+    if not _implemented(name):
         raise NotImplementedError(
             f"task {name!r} is declared but not implemented yet in dax-tasks; "
             f"available now: {', '.join(available())}")
-    module, attr = _IMPLEMENTED[name]
+    module, attr = _MODULES[name]
     return getattr(importlib.import_module(module), attr)
 
 

@@ -12,7 +12,10 @@ A task file provides
 * ``object_points(spec, physics) -> (N, 3)`` — the particles the distance compares;
 * ``end_effector(spec, physics) -> (3,)`` — the gripper / pusher position [m];
 * optionally ``observe(spec, physics) -> obs``; the default is the object points
-  (every ``spec.obs_stride``-th) flattened, followed by the end-effector position.
+  (every ``spec.obs_stride``-th) flattened, followed by the end-effector position;
+* optionally ``expert(spec, state: TaskState) -> action`` — a scripted expert with
+  privileged state (it may read ``state.physics``, ``state.goal`` and the step counter
+  ``state.t``); pure and jittable. dax-data records demonstrations with it.
 
 Everything else (rewards, step counter, ``done``, bounds, batching, input checks) is here,
 once, for every task.
@@ -136,6 +139,7 @@ class TaskDef:
     object_points: Callable
     end_effector: Callable
     observe: Callable | None = None
+    expert: Callable | None = None
 
 
 @pytree_dataclass
@@ -203,6 +207,10 @@ class Task:
             reset, step = jax.vmap(reset), jax.vmap(step)
         self._reset = jax.jit(reset)
         self._step = jax.jit(step)
+        self._expert = None
+        if defn.expert is not None:
+            expert = self._expert_one if batch_size is None else jax.vmap(self._expert_one)
+            self._expert = jax.jit(expert)
 
     @property
     def horizon(self) -> int:
@@ -246,7 +254,23 @@ class Task:
         new_state = TaskState(physics=physics, goal=state.goal, t=t, finite=finite)
         return self._observe(physics), new_state, reward, done, info
 
+    def _expert_one(self, state: TaskState):
+        action = jnp.asarray(self.defn.expert(self.spec, state), jnp.float32)
+        return jnp.clip(action, jnp.asarray(self.spec.action_low, jnp.float32),
+                        jnp.asarray(self.spec.action_high, jnp.float32))
+
     # ------------------------------------------------------------------ public API
+    @property
+    def has_expert(self) -> bool:
+        return self.defn.expert is not None
+
+    def expert_action(self, state: TaskState):
+        """The scripted expert's action for ``state`` (batched when the task is), inside
+        the action bounds. Raises ``NotImplementedError`` if the task has no expert."""
+        if self._expert is None:
+            raise NotImplementedError(f"task {self.spec.name!r} has no scripted expert")
+        return self._expert(state)
+
     def reset(self, key=None):
         """``(obs, state)`` of a new episode; ``key`` defaults to ``PRNGKey(seed)``. With a
         batch, one key is split into ``batch_size`` keys (or pass ``(B, 2)`` keys)."""
