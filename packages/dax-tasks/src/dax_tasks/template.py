@@ -13,6 +13,9 @@ A task file provides
 * ``end_effector(spec, physics) -> (3,)`` — the gripper / pusher position [m];
 * optionally ``observe(spec, physics) -> obs``; the default is the object points
   (every ``spec.obs_stride``-th) flattened, followed by the end-effector position;
+* optionally ``distance(spec, physics, goal) -> D`` [m] — replaces ``spec.distance`` for a
+  task whose distance is not a point-set distance (e.g. the liquid left outside a target
+  bowl); it must be differentiable and >= 0;
 * optionally ``expert(spec, state: TaskState) -> action`` — a scripted expert with
   privileged state (it may read ``state.physics``, ``state.goal`` and the step counter
   ``state.t``); pure and jittable. dax-data records demonstrations with it.
@@ -140,6 +143,7 @@ class TaskDef:
     end_effector: Callable
     observe: Callable | None = None
     expert: Callable | None = None
+    distance: Callable | None = None
 
 
 @pytree_dataclass
@@ -240,7 +244,10 @@ class Task:
                           jnp.asarray(spec.action_high, jnp.float32))
         physics = self.defn.apply_action(spec, state.physics, action)
         pts = self.defn.object_points(spec, physics)
-        dist = rewards.DISTANCES[spec.distance](pts, state.goal)
+        if self.defn.distance is not None:
+            dist = self.defn.distance(spec, physics, state.goal)
+        else:
+            dist = rewards.DISTANCES[spec.distance](pts, state.goal)
         r_gt = rewards.ground_truth_reward(dist, spec.lam)
         r_aux = rewards.auxiliary_reward(self.defn.end_effector(spec, physics), pts)
         reward = r_gt + r_aux if spec.aux_reward else r_gt
