@@ -8,7 +8,8 @@ info)``; ``dax_tasks.TASKS`` lists the nine benchmark names. A task is a
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import rewards
+from . import goals, rewards
+from .goals import GoalFileError
 from .registry import TASKS, available, get_definition, get_spec, make
 from .rewards import auxiliary_reward, chamfer, ground_truth_reward, l2_correspondence
 from .template import Box, Task, TaskDef, TaskSpec, TaskState
@@ -19,7 +20,7 @@ except PackageNotFoundError:  # imported from a source tree that was never insta
     __version__ = "0+unknown"
 
 __all__ = [
-    "TASKS", "Box", "Task", "TaskDef", "TaskSpec", "TaskState", "__version__",
-    "auxiliary_reward", "available", "chamfer", "get_definition", "get_spec",
+    "TASKS", "Box", "GoalFileError", "Task", "TaskDef", "TaskSpec", "TaskState", "__version__",
+    "auxiliary_reward", "available", "chamfer", "get_definition", "get_spec", "goals",
     "ground_truth_reward", "l2_correspondence", "make", "rewards",
 ]

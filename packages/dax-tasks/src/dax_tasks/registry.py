@@ -60,13 +60,16 @@ def get_spec(name: str) -> TaskSpec:
     return get_definition(name).spec
 
 
-def make(name: str, batch_size: int | None = None, seed: int = 0, **overrides) -> Task:
+def make(name: str, batch_size: int | None = None, seed: int = 0, goal_path=None,
+         cache_goal: bool = True, **overrides) -> Task:
     """Build task ``name``. ``overrides`` replace :class:`TaskSpec` fields, e.g.
-    ``aux_reward=True``, ``contact_adjustment=False``, ``horizon=3`` or a new ``scene``."""
+    ``aux_reward=True``, ``contact_adjustment=False``, ``horizon=3`` or a new ``scene``.
+    ``goal_path`` / ``cache_goal``: where the goal comes from (:mod:`dax_tasks.goals`)."""
     defn = get_definition(name)
     fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
     unknown = sorted(set(overrides) - fields)
     if unknown:
         raise ValueError(f"unknown TaskSpec override(s) {unknown}; valid: {sorted(fields)}")
     spec = dataclasses.replace(defn.spec, **overrides)
-    return Task(defn, spec, batch_size=batch_size, seed=seed)
+    return Task(defn, spec, batch_size=batch_size, seed=seed, goal_path=goal_path,
+                cache_goal=cache_goal)

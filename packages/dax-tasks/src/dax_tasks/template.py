@@ -37,7 +37,7 @@ import numpy as np
 
 from dax_physics import pytree_dataclass
 
-from . import rewards
+from . import goals, rewards
 
 ACTION_KINDS = ("push", "pick_place", "velocity")
 
@@ -178,6 +178,9 @@ class Task:
     batch_size: ``None`` for one environment; ``B`` gives states and actions a leading
         batch axis of size ``B`` (``vmap`` inside).
     seed: the key ``reset()`` uses when called without one.
+    goal_path: a goal file (:mod:`dax_tasks.goals`) to use instead of the task's own goal;
+        by default the goal comes from the cache directory, or is computed by the task's
+        ``goal(spec)`` and cached there (``cache_goal=False`` computes it every time).
 
     **Bad input.** Eagerly (concrete arrays) a wrong action shape, a NaN/inf action or a
     wrong key shape raise ``ValueError``. Under ``jit``/``grad`` the values are not
@@ -187,13 +190,22 @@ class Task:
     """
 
     def __init__(self, defn: TaskDef, spec: TaskSpec | None = None,
-                 batch_size: int | None = None, seed: int = 0):
+                 batch_size: int | None = None, seed: int = 0, goal_path=None,
+                 cache_goal: bool = True):
         if batch_size is not None and not (isinstance(batch_size, int) and batch_size > 0):
             raise ValueError(f"batch_size must be None or a positive int, got {batch_size!r}")
         self.defn = defn
         self.spec = defn.spec if spec is None else spec
         self.batch_size = batch_size
         self.seed = int(seed)
+        n_points = None
+        if defn.distance is None and self.spec.distance == "l2":
+            def points(key):
+                return defn.object_points(self.spec, defn.init(key, self.spec))
+            n_points = jax.eval_shape(points, jax.random.PRNGKey(0)).shape[0]
+        #: The goal particle set [m] (NumPy) and where it came from (see dax_tasks.goals).
+        self.goal, self.goal_provenance = goals.resolve_goal(
+            defn, self.spec, goal_path, use_cache=cache_goal, n_points=n_points)
         low = np.asarray(self.spec.action_low, np.float32)
         high = np.asarray(self.spec.action_high, np.float32)
         self.single_action_space = Box(low, high, low.shape)
@@ -231,7 +243,7 @@ class Task:
 
     def _reset_one(self, key):
         physics = self.defn.init(key, self.spec)
-        goal = jnp.asarray(self.defn.goal(self.spec), jnp.float32)
+        goal = jnp.asarray(self.goal, jnp.float32)
         state = TaskState(physics=physics, goal=goal, t=jnp.zeros((), jnp.int32),
                           finite=jnp.asarray(True))
         return self._observe(physics), state
