@@ -151,3 +151,13 @@ def test_default_configuration_steps_finite_without_escaping():
     _, _, reward, _, info = task.step(state, a)
     assert bool(info["finite"]) and not bool(info["escaped"]), info
     assert 0.0 <= float(reward) <= 1.0
+
+
+def test_expert_hook_matches_expert_action_and_batches(task, reset0, expert, batched):
+    _, state = reset0
+    np.testing.assert_array_equal(np.asarray(task.expert_action(state)),
+                                  np.asarray(expert(state)))
+    _, states = batched.reset(jax.random.PRNGKey(0))
+    actions = batched.expert_action(states)
+    assert actions.shape == batched.action_shape, f"got {actions.shape}"
+    assert batched.action_space.contains(np.asarray(actions))

@@ -23,10 +23,18 @@ def test_unknown_name_error_lists_valid_names():
         assert name in str(err.value), f"expected {name!r} in the message, got {err.value}"
 
 
-def test_declared_but_unimplemented_task_says_what_is_available():
+def test_declared_but_unimplemented_task_says_what_is_available(monkeypatch):
+    from types import MappingProxyType
+
+    from dax_tasks import registry
+
+    modules = dict(registry._MODULES)
+    modules["fold_cloth1"] = ("dax_tasks.no_such_module", "FOLD_CLOTH1")
+    monkeypatch.setattr(registry, "_MODULES", MappingProxyType(modules))
     with pytest.raises(NotImplementedError, match="push_rope") as err:
         dax_tasks.make("fold_cloth1")
     assert "fold_cloth1" in str(err.value), f"expected the task name in {err.value}"
+    assert "fold_cloth1" not in dax_tasks.available()
 
 
 def test_unknown_override_is_refused():
@@ -70,3 +78,15 @@ def test_nan_action_is_a_clear_error_eagerly(task, reset0):
     a[2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         task.step(state, a)
+
+
+def test_task_without_expert_says_so():
+    from conftest import small_overrides
+
+    from dax_tasks import push_rope
+
+    defn = dataclasses.replace(push_rope.PUSH_ROPE, expert=None)
+    task = dax_tasks.Task(defn, dataclasses.replace(defn.spec, **small_overrides()))
+    assert not task.has_expert
+    with pytest.raises(NotImplementedError, match="no scripted expert"):
+        task.expert_action(None)
