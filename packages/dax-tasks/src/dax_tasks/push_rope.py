@@ -48,9 +48,9 @@ from dax_physics import (
     Material,
     MPMConfig,
     init_state,
-    rollout,
     sampling,
     set_collider_velocity,
+    substep,
 )
 
 from .template import TaskDef, TaskSpec
@@ -223,7 +223,7 @@ def apply_action(spec: TaskSpec, physics, action):
     if n_push <= 0:
         raise ValueError(f"push_rope needs substeps > lift_substeps = {n_lift}, "
                          f"got {spec.substeps}")
-    t_push, t_lift = n_push * scene.dt, n_lift * scene.dt
+    t_push, t_lift = n_push * scene.dt, max(n_lift, 1) * scene.dt
     start = push_start(spec, physics, action)
     disp = action[3:] - action[:3]
     max_len = scene.push_speed * t_push
@@ -231,14 +231,30 @@ def apply_action(spec: TaskSpec, physics, action):
     centre = start + jnp.asarray([0.0, 0.0, _tip_to_centre(scene)], start.dtype)
     cs = physics.colliders
     physics = physics.replace(colliders=cs.replace(pos=cs.pos.at[PUSHER].set(centre)))
-    params = cfg.params
-    physics = set_collider_velocity(physics, PUSHER, disp / t_push, jnp.zeros(3))
-    physics = rollout(cfg, params, physics, n_push, _largest_divisor(n_push, scene.segment))
-    if n_lift:
-        up = jnp.asarray([0.0, 0.0, scene.lift_height / t_lift], jnp.float32)
-        physics = set_collider_velocity(physics, PUSHER, up)
-        physics = rollout(cfg, params, physics, n_lift, _largest_divisor(n_lift, scene.segment))
+    v_push = disp / t_push
+    v_lift = jnp.asarray([0.0, 0.0, scene.lift_height / t_lift], jnp.float32)
+    physics = _scheduled_rollout(cfg, physics, n_push, v_push, v_lift, spec.substeps,
+                                 _largest_divisor(spec.substeps, scene.segment))
     return set_collider_velocity(physics, PUSHER, jnp.zeros(3))
+
+
+def _scheduled_rollout(cfg, physics, n_push, v_push, v_lift, n, segment):
+    """``n`` substeps in one checkpointed scan; the pusher moves at ``v_push`` for the first
+    ``n_push`` substeps and at ``v_lift`` after (one scan, so the substep body is compiled
+    once for the forward pass and once for the backward pass)."""
+    params = cfg.params
+
+    def body(s, i):
+        vel = jnp.where(i < n_push, v_push, v_lift)
+        s = set_collider_velocity(s, PUSHER, vel, jnp.zeros(3))
+        return substep(cfg, params, s), None
+
+    @jax.checkpoint
+    def seg(s, idx):
+        return jax.lax.scan(body, s, idx)[0]
+
+    idx = jnp.arange(n, dtype=jnp.int32).reshape(n // segment, segment)
+    return jax.lax.scan(lambda s, i: (seg(s, i), None), physics, idx)[0]
 
 
 def expert_action(spec: TaskSpec, physics, goal_points):
