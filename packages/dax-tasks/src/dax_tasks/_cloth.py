@@ -1,0 +1,286 @@
+"""Private helpers of the cloth tasks: the scene, the cloth meshes, the pick-and-place macro
+and the canonical scripted folds (see :mod:`dax_tasks.cloth_tasks` for the task
+documentation)."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import dax_physics.cloth as dc
+from dax_physics.cloth import mesh as dmesh
+
+#: Default T-shirt outline [m] (see :func:`dax_physics.cloth.tshirt_outline`).
+TSHIRT_OUTLINE = (("width", 0.2), ("length", 0.25), ("sleeve", 0.08),
+                  ("sleeve_width", 0.08), ("neck", 0.08), ("neck_depth", 0.02))
+
+
+@dataclasses.dataclass(frozen=True)
+class ClothScene:
+    """Static scene of a cloth task (SI units; hashable, a jit static argument).
+
+    shape: ``"square"`` or ``"tshirt"``.
+    n: square cloth vertices per side (``n * n`` vertices).
+    size: square cloth side [m].
+    spacing: T-shirt grid spacing [m]; outline: T-shirt outline keywords (tuple of pairs).
+    density [kg/m^2], stretch / bend [N/m], damping [N s/m]: the mass-spring material
+        (:func:`dax_physics.cloth.make_cloth`; shear = stretch).
+    dt: substep [s] (checked against the stable bound when the cloth is built).
+    friction: Coulomb coefficient of cloth on the table (static; dynamic = 0.8 x).
+    settle_substeps: substeps after the release in every action (the rest of
+        ``spec.substeps`` carry the gripper).
+    arc_height: the gripper path's peak height over the table-plane travel distance.
+    grasp_radius: without contact adjustment the gripper holds the vertices within this
+        fraction of the mesh spacing of the pick point; with it, those around the nearest
+        vertex.
+    folds: canonical fold sequence of the task ("" none; "diag1" one diagonal fold;
+        "diag3" three; "tshirt" sleeves in, then in half).
+    unfold: the episode starts folded (``folds`` applied) and the goal is the flat cloth.
+    rotation_range [rad], offset_range [m]: initial pose randomisation (rotation about the
+        vertical axis through the table centre, then a translation in the table plane).
+    """
+
+    shape: str = "square"
+    n: int = 11
+    size: float = 0.3
+    spacing: float = 0.025
+    outline: tuple = TSHIRT_OUTLINE
+    density: float = 0.2
+    stretch: float = 10.0
+    bend: float = 0.5
+    damping: float = 0.01
+    dt: float = 1.0e-3
+    friction: float = 1.0
+    settle_substeps: int = 300
+    arc_height: float = 0.5
+    grasp_radius: float = 0.25
+    folds: str = "diag1"
+    unfold: bool = False
+    rotation_range: float = 0.1
+    offset_range: float = 0.01
+
+    def __post_init__(self):
+        if self.shape not in ("square", "tshirt"):
+            raise ValueError(f"cloth shape must be 'square' or 'tshirt', got {self.shape!r}")
+        if self.folds not in FOLD_PLANS:
+            raise ValueError(f"unknown fold sequence {self.folds!r}; "
+                             f"valid: {', '.join(FOLD_PLANS)}")
+        if self.shape == "square" and self.n < 3:
+            raise ValueError(f"a square cloth needs n >= 3 vertices per side, got {self.n}")
+        for name in ("size", "spacing", "density", "dt", "grasp_radius"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.settle_substeps < 0:
+            raise ValueError(f"settle_substeps must be >= 0, got {self.settle_substeps}")
+
+    @property
+    def mesh_spacing(self) -> float:
+        return self.size / (self.n - 1) if self.shape == "square" else self.spacing
+
+
+def rest_vertices(scene: ClothScene):
+    """Rest mesh ``(vertices (V, 3), faces)`` [m], flat on the table (z = 0), centred on the
+    table centre (the origin)."""
+    if scene.shape == "square":
+        h = scene.size / 2
+        return dmesh.square_mesh(scene.n, scene.n, (scene.size, scene.size), (-h, -h), 0.0)
+    v, f = dmesh.tshirt_mesh(scene.spacing, 0.0, **dict(scene.outline))
+    v = v.copy()
+    v[:, :2] -= 0.5 * (v[:, :2].min(0) + v[:, :2].max(0))
+    return v, f
+
+
+@functools.lru_cache(maxsize=32)
+def _cloth_np(scene: ClothScene):
+    v, f = rest_vertices(scene)
+    return v, f
+
+
+def make_cloth(scene: ClothScene) -> dc.Cloth:
+    """The :class:`dax_physics.cloth.Cloth` of the scene (constant arrays)."""
+    v, f = _cloth_np(scene)
+    with jax.ensure_compile_time_eval():
+        return dc.make_cloth(v, f, density=scene.density, stretch=scene.stretch,
+                             bend=scene.bend, damping=scene.damping)
+
+
+def cloth_config(scene: ClothScene) -> dc.ClothConfig:
+    return dc.ClothConfig(dt=scene.dt, friction_static=scene.friction,
+                          friction_dynamic=0.8 * scene.friction, table_height=0.0)
+
+
+@functools.lru_cache(maxsize=32)
+def check_scene(scene: ClothScene) -> None:
+    """Raise ``ValueError`` if ``scene.dt`` is above the stable substep of its cloth."""
+    dc.check_stable(cloth_config(scene), make_cloth(scene))
+
+
+# ----------------------------------------------------------------------------- the macro
+
+def grasp_set(scene: ClothScene, x, pick, contact_adjustment: bool):
+    """``(grip (V,), start (3,))``: the held vertices (1/0, no gradient) and the gripper's
+    start point [m]. With contact adjustment the start is the nearest vertex, with a
+    straight-through gradient so that d start / d pick = identity."""
+    xs = jax.lax.stop_gradient(x)
+    if contact_adjustment:
+        i = jnp.argmin(jnp.sum((xs - jax.lax.stop_gradient(pick)) ** 2, -1))
+        centre = xs[i]
+        start = centre + (pick - jax.lax.stop_gradient(pick))
+    else:
+        centre = jax.lax.stop_gradient(pick)
+        start = pick
+    r = scene.grasp_radius * scene.mesh_spacing
+    grip = (jnp.sum((xs - centre) ** 2, -1) <= r * r).astype(x.dtype)
+    return grip, start
+
+
+def gripper_path(scene: ClothScene, start, place, n_move: int):
+    """Gripper waypoints (n_move + 1, 3) [m]: an eased arc from ``start`` to ``place`` whose
+    height peaks at ``arc_height`` x the table-plane distance."""
+    u = jnp.linspace(0.0, 1.0, n_move + 1, dtype=start.dtype)
+    s = 0.5 - 0.5 * jnp.cos(jnp.pi * u)
+    dist = jnp.sqrt(jnp.sum((place - start)[:2] ** 2) + 1e-12)
+    lift = scene.arc_height * dist * jnp.sin(jnp.pi * s)
+    up = jnp.asarray([0.0, 0.0, 1.0], start.dtype)
+    return start + (place - start) * s[:, None] + lift[:, None] * up
+
+
+def pick_place(scene: ClothScene, substeps: int, state: dc.ClothState, action,
+               contact_adjustment: bool) -> dc.ClothState:
+    """One pick-and-place action ``(x, y, z, x', y', z')`` [m] as a single ``lax.scan`` of
+    ``substeps`` substeps: grasp at the pick point, carry along :func:`gripper_path` for
+    ``substeps - settle_substeps`` substeps, release, settle."""
+    n_settle = scene.settle_substeps
+    n_move = substeps - n_settle
+    if n_move < 1:
+        raise ValueError(f"cloth tasks need substeps > settle_substeps = {n_settle}, "
+                         f"got {substeps}")
+    cfg = cloth_config(scene)
+    cloth = make_cloth(scene)
+    pick, place = action[:3], action[3:]
+    grip, start = grasp_set(scene, state.x, pick, contact_adjustment)
+    path = gripper_path(scene, start, place, n_move)
+    vel = jnp.concatenate([(path[1:] - path[:-1]) / scene.dt,
+                           jnp.zeros((n_settle, 3), path.dtype)])
+    held = (jnp.arange(substeps) < n_move).astype(state.x.dtype)
+    state = state.replace(grip=grip[None], gripper_pos=start[None],
+                          gripper_vel=jnp.zeros_like(state.gripper_vel))
+
+    def body(s, inp):
+        h, v = inp
+        s = s.replace(grip=grip[None] * h, gripper_vel=v[None])
+        return dc.step(cfg, cloth, s), None
+
+    state, _ = jax.lax.scan(body, state, (held, vel))
+    return state.replace(grip=jnp.zeros_like(state.grip),
+                         gripper_vel=jnp.zeros_like(state.gripper_vel))
+
+
+# ----------------------------------------------------------------------------- fold plans
+
+def _square_corners(scene: ClothScene):
+    n = scene.n
+    return {"00": 0, "01": n - 1, "10": (n - 1) * n, "11": n * n - 1}
+
+
+def _nearest(v, p):
+    return int(np.argmin(np.sum((v[:, :2] - np.asarray(p)[None]) ** 2, 1)))
+
+
+def fold_plan(scene: ClothScene):
+    """The canonical fold sequence: a tuple of ``(vertex index, place point (3,))`` in the
+    canonical (target) frame."""
+    v, _ = _cloth_np(scene)
+    plan = []
+    if scene.folds in ("diag1", "diag3"):
+        if scene.shape != "square":
+            raise ValueError(f"fold sequence {scene.folds!r} needs a square cloth")
+        c = _square_corners(scene)
+        plan.append((c["00"], 0.9 * v[c["11"]]))       # onto the opposite corner
+        if scene.folds == "diag3":
+            plan.append((c["10"], 0.9 * v[c["01"]]))   # triangle in half
+            plan.append((c["01"], 0.9 * v[c["11"]]))   # and once more
+    elif scene.folds == "tshirt":
+        if scene.shape != "tshirt":
+            raise ValueError("fold sequence 'tshirt' needs a T-shirt cloth")
+        o = dict(scene.outline)
+        hw = o["width"] / 2
+        lo, hi = v[:, :2].min(0), v[:, :2].max(0)
+        arm = lo[1] + o["length"] - o["sleeve_width"]
+        for side in (-1.0, 1.0):  # sleeve tips folded in, mirrored across the body side
+            tip = _nearest(v, (side * hi[0], arm))
+            x_in = side * (2 * hw - abs(v[tip, 0]))
+            plan.append((tip, np.array([x_in, v[tip, 1], 0.0])))
+        hem = _nearest(v, (-hw, lo[1]))
+        shoulder = _nearest(v, (-hw, lo[1] + o["length"]))
+        plan.append((hem, np.array([0.9 * hw, v[hem, 1], 0.0])))
+        plan.append((shoulder, np.array([0.9 * hw, v[shoulder, 1], 0.0])))
+    return tuple((int(i), np.asarray(p, np.float32)) for i, p in plan)
+
+
+FOLD_PLANS = ("", "diag1", "diag3", "tshirt")
+
+
+def plan_action(x, index: int, place) -> jnp.ndarray:
+    """The action picking vertex ``index`` (at its current position) and placing it at
+    ``place``."""
+    return jnp.concatenate([x[index], jnp.asarray(place, x.dtype)])
+
+
+#: Time [s] of free settling after the canonical fold, so the goal of a fold task and the
+#: start of an unfold task are at rest.
+REST_TIME = 0.5
+
+
+def settle(scene: ClothScene, state: dc.ClothState, n: int) -> dc.ClothState:
+    """``n`` substeps with nothing held (one ``lax.scan``)."""
+    cfg, cloth = cloth_config(scene), make_cloth(scene)
+    state = state.replace(grip=jnp.zeros_like(state.grip),
+                          gripper_vel=jnp.zeros_like(state.gripper_vel))
+    return jax.lax.scan(lambda s, _: (dc.step(cfg, cloth, s), None), state, None, length=n)[0]
+
+
+@functools.lru_cache(maxsize=16)
+def folded_vertices(scene: ClothScene, substeps: int) -> np.ndarray:
+    """The canonical folded cloth (V, 3) [m]: :func:`fold_plan` run from the flat cloth at
+    the target pose with contact adjustment on, then ``REST_TIME`` of free settling (NumPy;
+    computed once per scene)."""
+    check_scene(scene)
+    plan = fold_plan(scene)
+    with jax.ensure_compile_time_eval():
+        state = dc.ClothState.create(make_cloth(scene), n_grippers=1)
+        step = jax.jit(lambda s, a: pick_place(scene, substeps, s, a, True))
+        for index, place in plan:
+            state = step(state, plan_action(state.x, index, place))
+        if plan:
+            state = jax.jit(lambda s: settle(scene, s, round(REST_TIME / scene.dt)))(state)
+        return np.asarray(state.x, np.float32)
+
+
+def flat_vertices(scene: ClothScene) -> np.ndarray:
+    return np.asarray(_cloth_np(scene)[0], np.float32)
+
+
+def rigid_pose(key, scene: ClothScene, x):
+    """``x`` rotated about the vertical axis through the origin by a uniform angle in
+    ``±rotation_range`` and shifted by a uniform offset in ``±offset_range`` (x and y)."""
+    k_rot, k_off = jax.random.split(key)
+    th = jax.random.uniform(k_rot, (), minval=-scene.rotation_range,
+                            maxval=scene.rotation_range)
+    off = jax.random.uniform(k_off, (2,), minval=-scene.offset_range,
+                             maxval=scene.offset_range)
+    c, s = jnp.cos(th), jnp.sin(th)
+    xy = jnp.stack([c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1]], 1) + off
+    return jnp.concatenate([xy, x[:, 2:]], 1)
+
+
+def reach(scene: ClothScene) -> float:
+    """Half-width [m] of the action box in the table plane: the cloth's extent plus margin."""
+    v = flat_vertices(scene)
+    r = float(np.max(np.linalg.norm(v[:, :2], axis=1)))
+    return math.ceil((r + scene.offset_range + 0.05) * 100) / 100

@@ -1,0 +1,214 @@
+"""The cloth tasks: Fold-Cloth-1, Fold-Cloth-3, Fold-T-shirt, Unfold-Cloth-1, Unfold-Cloth-3.
+
+Scene (SI units, z up). One mass-spring cloth (:mod:`dax_physics.cloth`, general mesh
+path) on a table at z = 0 with Coulomb friction (static 1.0, dynamic 0.8), no
+self-collision (see "Known limitations"). The square cloth is 0.3 m x 0.3 m with 11 x 11
+vertices (3 cm spacing, union-jack triangulation); the T-shirt is a 0.2 m wide, 0.25 m long
+body with 8 cm sleeves on a 2.5 cm grid (:func:`dax_physics.cloth.tshirt_mesh`). Material:
+0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m, dashpot 0.01 N s/m per spring; substep
+``dt`` = 1 ms (the Gershgorin bound of these springs and masses is 1.1 ms for the square
+cloth; checked when a task is built). One gripper. The canonical (target) pose is the cloth
+centred on the table centre, the origin.
+
+Initial state. Fold tasks: the flat cloth. Unfold tasks: the canonical folded cloth (the
+scripted fold below, simulated once per scene and cached). Either is then moved by a random
+rigid pose drawn from the seed: a rotation about the vertical axis through the table centre,
+uniform in ±0.1 rad, and a shift uniform in ±1 cm in x and y (``ClothScene.rotation_range``,
+``offset_range``), modest so the task stays achievable within the horizon. Vertices keep
+their index, so they correspond across seeds and to the goal.
+
+Goal (fixed per task and scene, a pure deterministic function of the spec; the template
+caches it on disk). Fold tasks: the end state of the canonical scripted fold of the
+unrandomised flat cloth (each fold picks one vertex and places it in the target frame),
+followed by 0.5 s of free settling so the goal is at rest:
+
+* Fold-Cloth-1: corner (-,-) onto 0.9 x the opposite corner (+,+): a diagonal fold into a
+  triangle;
+* Fold-Cloth-3: that, then corner (+,-) onto 0.9 x corner (-,+) (the triangle in half), then
+  corner (-,+) onto 0.9 x corner (+,+) (in half again);
+* Fold-T-shirt: each sleeve tip mirrored across its body side (sleeves in), then the
+  bottom-left hem corner and the top-left shoulder onto 0.9 x their mirror across the
+  vertical centre line (the shirt folded in half).
+
+Unfold tasks: the flat cloth at the target pose.
+
+Action: a pick-and-place macro ``(x, y, z, x', y', z')`` [m]: the gripper holds the
+vertices within ``grasp_radius`` x spacing (0.75 cm) of the pick point, carries them along an
+eased arc (cosine speed profile, height peaking at 0.5 x the table-plane travel) to the
+place point over ``substeps - settle_substeps`` substeps, releases them and the cloth
+settles for ``settle_substeps`` (default 400 + 300 = 700 substeps, 0.7 s; T-shirt 800 + 200
+substeps of 0.45 ms). The pick and place points enter the physics as the gripper's
+velocity command, which the held vertices take, so ``d reward / d action`` is non-zero
+whenever something is held. Bounds: x and y within the cloth's reach plus 5 cm of the
+table centre (±0.28 m square, ±0.29 m T-shirt), z in [0, 0.1] m.
+
+Contact adjustment (``spec.contact_adjustment``, default on): the pick point snaps to the
+nearest cloth vertex (3-D distance) and the gripper holds the vertices within the grasp
+radius of that vertex, so a pick always holds at least one vertex. The snap is
+straight-through for gradients: the gripper starts at the vertex but ``d start / d pick``
+is the identity, so the pick point has the gradient of moving the start of the carry. Off,
+the raw pick point is used: a pick with no vertex within the grasp radius holds nothing,
+the cloth only settles, and the action gradient is exactly zero (tested).
+
+Distance and reward: ``D`` = index-correspondence mean L2 [m] between the cloth's vertices
+and the goal's; ``lam = 10 /m``, so ``r_gt = exp(-10 D)``. The flat cloth at the target is
+about 0.09 m from the Fold-Cloth-1 goal (r_gt about 0.4) while the expert's fold of a
+randomly placed cloth is about 0.015 m (r_gt about 0.86).
+
+Experts (privileged state: ``state.physics``, ``state.goal``, ``state.t``). Fold tasks:
+at step t < number of folds, fold t of the canonical plan done on the cloth where it lies
+(pick the plan's vertex where it is now, place it at the plan's place point moved by the
+cloth's rigid pose, fitted in the table plane on the vertices the folds leave in place);
+afterwards a no-op (pick a vertex and put it back where it is). The random pose is not
+undone (one gripper cannot rotate a cloth), so it bounds the experts' scores. Unfold
+tasks: pick the vertex farthest from its goal position and place
+it at its goal position.
+
+Known limitations. No self-collision (it costs ~5x per substep here, see the dax-tasks
+README): folded layers rest on the table and on each other at z = 0, may interpenetrate,
+and do not rub against each other; a grasp within the radius holds every layer there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+import dax_physics.cloth as dc
+
+from . import _cloth
+from ._cloth import ClothScene
+from .template import TaskDef, TaskSpec
+
+__all__ = ["FOLD_CLOTH1", "FOLD_CLOTH3", "FOLD_TSHIRT", "UNFOLD_CLOTH1", "UNFOLD_CLOTH3",
+           "ClothScene", "expert_action", "goal", "init", "apply_action"]
+
+#: Height range of pick and place points [m] (the table is z = 0).
+Z_MAX = 0.1
+
+
+def start_vertices(spec: TaskSpec) -> np.ndarray:
+    """The canonical start of an episode before the random pose (V, 3) [m]: the folded cloth
+    for unfold tasks, the flat cloth otherwise."""
+    scene = spec.scene
+    if scene.unfold:
+        return _cloth.folded_vertices(scene, spec.substeps)
+    return _cloth.flat_vertices(scene)
+
+
+def goal(spec: TaskSpec):
+    """The goal vertices (V, 3) [m]: the canonical fold (fold tasks) or the flat cloth at
+    the target (unfold tasks)."""
+    scene = spec.scene
+    if scene.unfold:
+        return _cloth.flat_vertices(scene)
+    return _cloth.folded_vertices(scene, spec.substeps)
+
+
+def init(key, spec: TaskSpec):
+    """The start cloth (:func:`start_vertices`) at a random rigid pose, at rest."""
+    _cloth.check_scene(spec.scene)
+    x0 = jnp.asarray(start_vertices(spec))
+    cloth = _cloth.make_cloth(spec.scene)
+    return dc.ClothState.create(cloth, x=_cloth.rigid_pose(key, spec.scene, x0),
+                                n_grippers=1)
+
+
+def apply_action(spec: TaskSpec, physics, action):
+    """One pick-and-place macro (``spec.substeps`` substeps, one ``lax.scan``)."""
+    return _cloth.pick_place(spec.scene, spec.substeps, physics, action,
+                             spec.contact_adjustment)
+
+
+def object_points(spec: TaskSpec, physics):
+    return physics.x
+
+
+def end_effector(spec: TaskSpec, physics):
+    """The gripper position [m] (3,)."""
+    return physics.gripper_pos[0]
+
+
+def _anchor_vertices(scene: ClothScene, substeps: int) -> np.ndarray:
+    """Indices of the vertices the canonical folds leave within half a mesh spacing of
+    where they started (at least the three that moved least)."""
+    moved = np.linalg.norm(_cloth.folded_vertices(scene, substeps)
+                           - _cloth.flat_vertices(scene), axis=1)
+    still = np.flatnonzero(moved < 0.5 * scene.mesh_spacing)
+    return still if len(still) >= 3 else np.argsort(moved)[:3]
+
+
+def _planar_pose(x, ref):
+    """The rotation about z (2, 2) and table-plane shift (2,) that best map ``ref`` onto
+    ``x`` (least squares, 2-D Kabsch)."""
+    mx, mr = jnp.mean(x[:, :2], 0), jnp.mean(ref[:, :2], 0)
+    a, b = ref[:, :2] - mr, x[:, :2] - mx
+    cos = jnp.sum(a * b)
+    sin = jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    th = jnp.arctan2(sin, cos)
+    rot = jnp.asarray([[jnp.cos(th), -jnp.sin(th)], [jnp.sin(th), jnp.cos(th)]])
+    return rot, mx - rot @ mr
+
+
+def expert_action(spec: TaskSpec, physics, goal_points, t):
+    """The scripted expert's action (see the module docstring); pure and jittable."""
+    scene = spec.scene
+    x = physics.x
+    if scene.unfold:
+        # pick the vertex farthest from its goal place and put it there (undoing the folds
+        # in reverse on the cloth as it lies scored lower: the cloth lands crumpled)
+        err = jnp.sum((x - goal_points) ** 2, axis=1)
+        i = jnp.argmax(err)
+        return jnp.concatenate([x[i], goal_points[i]])
+    plan = _cloth.fold_plan(scene)
+    idx = jnp.asarray([i for i, _ in plan], jnp.int32)
+    # The cloth's rigid pose, fitted on the anchor vertices (those the canonical folds
+    # leave in place, so they sit at their flat positions folded or not).
+    anchors = _anchor_vertices(scene, spec.substeps)
+    flat = jnp.asarray(_cloth.flat_vertices(scene), x.dtype)
+    rot, shift = _planar_pose(x[anchors], flat[anchors])
+
+    def posed(p):
+        return jnp.concatenate([rot @ p[:2] + shift, p[2:]])
+
+    k = jnp.minimum(t, len(plan) - 1)
+    places = jnp.asarray(np.stack([p for _, p in plan]), x.dtype)
+    fold = jnp.concatenate([x[idx[k]], posed(places[k])])
+    noop = jnp.concatenate([x[idx[-1]], x[idx[-1]]])
+    return jnp.where(t < len(plan), fold, noop)
+
+
+def expert(spec: TaskSpec, state):
+    """The template's expert hook: :func:`expert_action` on the episode state."""
+    return expert_action(spec, state.physics, state.goal, state.t)
+
+
+def _spec(name: str, horizon: int, scene: ClothScene, substeps: int) -> TaskSpec:
+    r = _cloth.reach(scene)
+    low = (-r, -r, 0.0)
+    high = (r, r, Z_MAX)
+    return TaskSpec(name=name, horizon=horizon, action_kind="pick_place",
+                    action_low=low + low, action_high=high + high, substeps=substeps,
+                    distance="l2", lam=10.0, aux_reward=False, contact_adjustment=True,
+                    obs_stride=1, scene=scene)
+
+
+def _task(name: str, horizon: int, substeps: int = 700, **scene) -> TaskDef:
+    spec = _spec(name, horizon, ClothScene(**scene), substeps)
+    return TaskDef(spec=spec, init=init, apply_action=apply_action, goal=goal,
+                   object_points=object_points, end_effector=end_effector, expert=expert)
+
+
+FOLD_CLOTH1 = _task("fold_cloth1", 3, folds="diag1")
+FOLD_CLOTH3 = _task("fold_cloth3", 4, folds="diag3")
+FOLD_TSHIRT = _task("fold_tshirt", 4, substeps=1000, shape="tshirt", folds="tshirt",
+                    dt=4.5e-4, settle_substeps=200)
+UNFOLD_CLOTH1 = _task("unfold_cloth1", 10, folds="diag1", unfold=True)
+UNFOLD_CLOTH3 = _task("unfold_cloth3", 10, folds="diag3", unfold=True)
+
+
+def replace_scene(spec: TaskSpec, **changes) -> TaskSpec:
+    """``spec`` with scene fields replaced (e.g. a coarser cloth for tests)."""
+    return dataclasses.replace(spec, scene=dataclasses.replace(spec.scene, **changes))
