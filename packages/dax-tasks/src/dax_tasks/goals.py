@@ -10,8 +10,9 @@ goal up, in this order:
    missing, corrupted or mismatched file is an error (:class:`GoalFileError`);
 2. the cache directory (:func:`cache_dir`: ``$DAX_CACHE_DIR/goals``, default
    ``~/.cache/dax/goals``), file ``<task>-<fingerprint>.npz`` where the fingerprint hashes
-   the parts of the spec the goal depends on (:func:`fingerprint`); an unreadable cache
-   file is regenerated, with a warning;
+   the parts of the spec the goal depends on and the source code of dax-tasks and
+   dax-physics (:func:`fingerprint`); an unreadable cache file is regenerated, with a
+   warning;
 3. the task's own ``goal(spec)`` (its canonical motion), whose result is then written to
    the cache (atomically; a read-only cache only costs a warning).
 
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import hashlib
 import json
 import os
@@ -51,12 +53,29 @@ def cache_dir() -> Path:
     return base / "goals"
 
 
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """SHA-256 of the Python sources of dax_tasks and dax_physics: a goal computed by one
+    version of the code is not reused by another (a changed fold or settling time changes
+    the goal without changing the spec)."""
+    import dax_physics
+
+    h = hashlib.sha256()
+    for package in (Path(__file__).parent, Path(dax_physics.__file__).parent):
+        for src in sorted(package.rglob("*.py")):
+            h.update(src.relative_to(package.parent).as_posix().encode())
+            h.update(src.read_bytes())
+    return h.hexdigest()
+
+
 def fingerprint(spec) -> str:
-    """12 hex digits identifying everything in ``spec`` a goal can depend on (the scene,
-    the substeps, the action kind and bounds, contact adjustment)."""
+    """12 hex digits identifying everything a goal can depend on: the fields of ``spec``
+    (the scene, the substeps, the action kind and bounds, contact adjustment) and the
+    simulator and task code (:func:`code_digest`)."""
     fields = {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)
               if f.name not in _IGNORED_FIELDS}
-    return hashlib.sha256(repr(sorted(fields.items())).encode()).hexdigest()[:12]
+    text = repr(sorted(fields.items())) + code_digest()
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def goal_file(spec, directory: str | os.PathLike | None = None) -> Path:
