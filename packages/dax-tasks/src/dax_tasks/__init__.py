@@ -8,11 +8,19 @@ info)``; ``dax_tasks.TASKS`` lists the nine benchmark names. A task is a
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import goals, rewards
+from . import goals, render, rewards
 from .goals import GoalFileError
 from .registry import TASKS, available, get_definition, get_spec, make
 from .rewards import auxiliary_reward, chamfer, ground_truth_reward, l2_correspondence
 from .template import Box, Task, TaskDef, TaskSpec, TaskState
+
+try:  # Gymnasium ids (dax/PushRope-v0, ...); dax-tasks works without gymnasium installed
+    from . import gym_envs
+except ModuleNotFoundError as _err:  # pragma: no cover - depends on the environment
+    if _err.name != "gymnasium":
+        raise
+else:
+    gym_envs.register_all()
 
 try:
     __version__: str = version("dax-tasks")
@@ -22,5 +30,5 @@ except PackageNotFoundError:  # imported from a source tree that was never insta
 __all__ = [
     "TASKS", "Box", "GoalFileError", "Task", "TaskDef", "TaskSpec", "TaskState", "__version__",
     "auxiliary_reward", "available", "chamfer", "get_definition", "get_spec", "goals",
-    "ground_truth_reward", "l2_correspondence", "make", "rewards",
+    "ground_truth_reward", "l2_correspondence", "make", "render", "rewards",
 ]

@@ -325,3 +325,46 @@ class Task:
             a = np.asarray(action)
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"{self.spec.name}: action contains NaN or inf: {a.tolist()}")
+
+    # ------------------------------------------------------------------ images
+    @property
+    def view(self) -> tuple:
+        """``(x0, x1, y0, y1, z0)`` [m]: the table window images show (see
+        :mod:`dax_tasks.render`), around the goal and the start of episode ``seed``. Each
+        object point covers a disc of 0.75 x the points' median spacing."""
+        if getattr(self, "_view", None) is None:
+            from . import render
+
+            with jax.ensure_compile_time_eval():
+                _, state = jax.jit(self._reset_one)(jax.random.PRNGKey(self.seed))
+                pts = np.asarray(self.defn.object_points(self.spec, state.physics))
+                ee = np.asarray(self.defn.end_effector(self.spec, state.physics))
+            self._view = render.view_window(pts, extra=(self.goal, ee))
+            self._splat = 0.75 * render.point_spacing(pts)
+        return self._view
+
+    def _images_one(self, state: TaskState, res: int):
+        from . import render
+
+        pts = self.defn.object_points(self.spec, state.physics)
+        ee = self.defn.end_effector(self.spec, state.physics)
+        view = self.view
+        return {"height": render.height_map(pts, view, res, self._splat),
+                "rgb": render.rgb_image(pts, ee, view, res, self._splat)}
+
+    def image_obs(self, state: TaskState, res: int = 64):
+        """Image observations of ``state``: ``{"height": (res, res) float32 [m], "rgb":
+        (res, res, 3) uint8}`` (a leading batch axis when the task is batched). Pure JAX: it
+        can be called inside ``jit``; eagerly it runs a jitted, cached implementation."""
+        key = ("images", res)
+        cache = self.__dict__.setdefault("_image_fns", {})
+        if key not in cache:
+            _ = self.view  # computed once, outside any trace
+            fn = lambda s: self._images_one(s, res)  # noqa: E731
+            cache[key] = jax.jit(fn if self.batch_size is None else jax.vmap(fn))
+        return cache[key](state)
+
+    def render(self, state: TaskState, res: int = 256) -> np.ndarray:
+        """An RGB frame (res, res, 3) uint8 of ``state`` seen from above (NumPy); for a
+        batched task, one frame per environment (B, res, res, 3)."""
+        return np.asarray(self.image_obs(state, res)["rgb"])

@@ -1,0 +1,161 @@
+"""Image observations and rendering: a top-down height map and a top-down RGB picture of
+a task's object points and end effector, pure JAX (jit and vmap them), plus a GIF writer.
+
+The picture covers a fixed square *view window* of the table per task
+(:func:`view_window`): the box around the goal, the start of an episode and the end
+effector, padded. Pixel ``(i, j)`` covers ``x`` in column ``j`` (left to right) and ``y``
+in row ``i`` (top row = largest ``y``), so the image is the scene seen from above with x to
+the right and y up.
+
+* :func:`height_map` ``(H, W)`` float32 [m]: the largest height of an object point above the
+  view's base height ``z0`` in each pixel (0 where there is none); occupied pixels are at
+  least ``1e-4`` m, so an object lying flat on the table still shows.
+* :func:`rgb_image` ``(H, W, 3)`` uint8: a grey table, the object shaded from dark blue
+  (low) to light blue (``shade_height`` above ``z0`` or more) and the end effector as a red
+  square.
+
+``Task.image_obs(state)``, ``Task.render(state)`` and ``dax_tasks.gym_envs`` use these.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+#: Smallest height [m] an occupied pixel of the height map gets.
+MIN_HEIGHT = 1e-4
+TABLE_RGB = (205, 200, 190)
+LOW_RGB = (25, 55, 150)
+HIGH_RGB = (140, 200, 255)
+GRIPPER_RGB = (220, 30, 30)
+
+
+def view_window(points, extra=(), pad: float = 0.25, margin: float = 0.02):
+    """``(x0, x1, y0, y1, z0)`` [m]: a square box in the table plane around ``points``
+    (M, 3) and the ``extra`` points, padded by ``pad`` x its size plus ``margin``; ``z0`` is
+    the lowest z of ``points`` (NumPy; computed once per task)."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    allp = np.concatenate([pts] + [np.asarray(e, np.float64).reshape(-1, 3) for e in extra])
+    lo, hi = allp[:, :2].min(0), allp[:, :2].max(0)
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * float(np.max(hi - lo)) * (1.0 + pad) + margin
+    return (float(centre[0] - half), float(centre[0] + half), float(centre[1] - half),
+            float(centre[1] + half), float(pts[:, 2].min()))
+
+
+def _pixels(points, window, res: int):
+    x0, x1, y0, y1, _ = window
+    u = (points[:, 0] - x0) / (x1 - x0) * res
+    v = (points[:, 1] - y0) / (y1 - y0) * res
+    inside = (u >= 0) & (u < res) & (v >= 0) & (v < res)
+    col = jnp.floor(u).astype(jnp.int32)
+    row = res - 1 - jnp.floor(v).astype(jnp.int32)
+    return row, col, inside
+
+
+def point_spacing(points) -> float:
+    """The points' typical spacing [m]: the median distance to the 4th-nearest neighbour
+    (a cloth vertex's grid neighbours; for randomly sampled particles it is robust to the
+    close pairs that make the nearest-neighbour distance small) (NumPy)."""
+    p = np.asarray(points, np.float64)[:2000]
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    k = min(3, len(p) - 2)
+    return float(np.median(np.sort(d, axis=1)[:, max(k, 0)])) if len(p) > 1 else 0.0
+
+
+def height_map(points, window, res: int = 64, radius: float = 0.0):
+    """``(res, res)`` float32: the highest object point above ``window[4]`` per pixel [m].
+    Each point covers the pixels within ``radius`` [m] of it (a cloth's vertices or a
+    liquid's particles then cover the surface between them)."""
+    points = jnp.asarray(points, jnp.float32)
+    row, col, inside = _pixels(points, window, res)
+    h = jnp.maximum(points[:, 2] - window[4], MIN_HEIGHT)
+    pix = (window[1] - window[0]) / res
+    k = int(np.ceil(radius / pix))
+    di, dj = np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij")
+    keep = (di ** 2 + dj ** 2) * pix * pix <= max(radius, 0.5 * pix) ** 2
+    di, dj = jnp.asarray(di[keep]), jnp.asarray(dj[keep])
+    r = row[:, None] + di[None]
+    c = col[:, None] + dj[None]
+    ok = (r >= 0) & (r < res) & (c >= 0) & (c < res) & inside[:, None]
+    flat = jnp.clip(r, 0, res - 1) * res + jnp.clip(c, 0, res - 1)
+    val = jnp.where(ok, h[:, None], 0.0)
+    return jnp.zeros(res * res, jnp.float32).at[flat.ravel()].max(val.ravel()).reshape(res, res)
+
+
+def rgb_image(points, end_effector, window, res: int = 64, radius: float = 0.0,
+              shade_height: float = 0.05, marker: int | None = None):
+    """``(res, res, 3)`` uint8: table, object shaded by height, end effector in red."""
+    hm = height_map(points, window, res, radius)
+    s = jnp.clip(hm / shade_height, 0.0, 1.0)[..., None]
+    low, high = jnp.asarray(LOW_RGB, jnp.float32), jnp.asarray(HIGH_RGB, jnp.float32)
+    obj = low + s * (high - low)
+    img = jnp.where(hm[..., None] > 0, obj, jnp.asarray(TABLE_RGB, jnp.float32))
+    ee = jnp.asarray(end_effector, jnp.float32).reshape(1, 3)
+    row, col, inside = _pixels(ee, window, res)
+    r, c = row[0], col[0]
+    k = max(1, res // 32) if marker is None else marker
+    rows, cols = jnp.arange(res)[:, None], jnp.arange(res)[None, :]
+    mark = (jnp.abs(rows - r) <= k) & (jnp.abs(cols - c) <= k) & inside[0]
+    img = jnp.where(mark[..., None], jnp.asarray(GRIPPER_RGB, jnp.float32), img)
+    return jnp.round(img).astype(jnp.uint8)
+
+
+def save_video(frames, path, fps: float = 10.0) -> Path:
+    """Write ``frames`` (a sequence of (H, W, 3) uint8 images) to ``path`` as an animated
+    GIF, atomically (a temporary file in the same directory, then renamed)."""
+    from PIL import Image
+
+    path = Path(path)
+    if path.suffix.lower() != ".gif":
+        raise ValueError(f"save_video writes GIF files; got {path.name!r} (use a .gif name)")
+    frames = [np.asarray(f) for f in frames]
+    if not frames:
+        raise ValueError("save_video needs at least one frame")
+    for f in frames:
+        if f.ndim != 3 or f.shape[2] != 3 or f.dtype != np.uint8:
+            raise ValueError(f"frames must be (H, W, 3) uint8 images, got {f.shape} {f.dtype}")
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    images = [Image.fromarray(f) for f in frames]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            images[0].save(f, format="GIF", save_all=True, append_images=images[1:],
+                           duration=int(round(1000 / fps)), loop=0)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def record_episode(task, policy=None, key=None, res: int = 128):
+    """Frames (a list of (res, res, 3) uint8) of one episode of an unbatched ``task``: the
+    start and every step. ``policy(state) -> action``; default the task's scripted expert,
+    or zero actions clipped into the bounds when it has none."""
+    if task.batch_size is not None:
+        raise ValueError("record_episode renders one environment; make the task with "
+                         "batch_size=None")
+    if policy is None:
+        if task.has_expert:
+            policy = task.expert_action
+        else:
+            zero = np.clip(np.zeros(task.spec.action_dim, np.float32),
+                           task.spec.action_low, task.spec.action_high)
+            policy = lambda state: zero  # noqa: E731
+    _, state = task.reset(key)
+    frames = [task.render(state, res=res)]
+    for _ in range(task.horizon):
+        _, state, _, _, _ = task.step(state, policy(state))
+        frames.append(task.render(state, res=res))
+    return frames
+

@@ -1,0 +1,94 @@
+"""Gymnasium adapters: the nine ids are registered, check_env passes, vector env shapes,
+bad actions are refused with a clear error and out-of-bound actions are clipped."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import dax_tasks
+from dax_tasks.gym_envs import GYM_IDS
+
+
+def test_all_nine_ids_registered():
+    assert set(GYM_IDS) == set(dax_tasks.TASKS)
+    for env_id in GYM_IDS.values():
+        assert env_id in gym.registry, env_id
+
+
+@pytest.mark.parametrize("env_id", ["dax/FoldCloth1-v0", "dax/UnfoldCloth1-v0"])
+def test_check_env_passes(env_id):
+    env = gym.make(env_id, render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*infinity.*")  # positions are unbounded
+        check_env(env.unwrapped, skip_render_check=False)
+
+
+@pytest.fixture(scope="module")
+def env():
+    return gym.make("dax/FoldCloth1-v0", render_mode="rgb_array")
+
+
+def test_reset_is_deterministic_and_episode_truncates_at_horizon(env):
+    o1, _ = env.reset(seed=5)
+    o2, _ = env.reset(seed=5)
+    o3, _ = env.reset(seed=6)
+    np.testing.assert_array_equal(o1, o2)
+    assert not np.array_equal(o1, o3)
+    assert o1.dtype == np.float32 and env.observation_space.shape == o1.shape
+    horizon = env.unwrapped.task.horizon
+    for t in range(horizon):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert 0.0 <= reward <= 1.0 and not terminated
+        assert truncated == (t + 1 == horizon)
+        assert float(info["r_gt"]) == pytest.approx(reward)
+
+
+def test_bad_actions_are_refused_with_a_clear_error(env):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        env.step(np.array([0.0, 0.0, np.nan, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"shape \(6,\), got \(4,\)"):
+        env.step(np.zeros(4))
+    with pytest.raises(ValueError, match="not an array of numbers"):
+        env.step(["a"] * 6)
+
+
+def test_out_of_bound_actions_are_clipped_like_the_task(env):
+    space = env.action_space
+    env.reset(seed=1)
+    far = space.high + 1.0
+    o_far, r_far, *_, info = env.step(far)
+    assert bool(info["clipped"])
+    env.reset(seed=1)
+    o_edge, r_edge, *_, info = env.step(space.high)
+    assert not bool(info["clipped"])
+    np.testing.assert_array_equal(o_far, o_edge)
+    assert r_far == r_edge
+
+
+def test_render_gives_an_rgb_frame(env):
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (256, 256, 3) and frame.dtype == np.uint8
+
+
+def test_vector_env_steps_the_batch_and_autoresets():
+    venv = gym.make_vec("dax/FoldCloth1-v0", num_envs=3,
+                        vectorization_mode="vector_entry_point")
+    obs, _ = venv.reset(seed=2)
+    assert obs.shape == (3, *venv.single_observation_space.shape)
+    horizon = venv.unwrapped.task.horizon
+    truncs = []
+    for _ in range(horizon):
+        obs, reward, terminated, truncated, info = venv.step(venv.action_space.sample())
+        assert reward.shape == (3,) and not terminated.any()
+        assert np.all((reward >= 0) & (reward <= 1))
+        truncs.append(truncated.copy())
+    assert truncs[-1].all() and not any(t.any() for t in truncs[:-1])
+    obs2, reward, _, truncated, _ = venv.step(venv.action_space.sample())  # the reset step
+    assert not truncated.any() and np.all(reward == 0)
+    with pytest.raises(ValueError, match=r"shape \(3, 6\)"):
+        venv.step(np.zeros((2, 6)))
