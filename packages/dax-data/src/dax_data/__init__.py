@@ -1,6 +1,13 @@
-"""Scripted experts, goal sets and demonstration files for the DaX tasks.
+"""Scripted-expert demonstrations, goal sets and exports for the DaX tasks.
 
-This release holds only the package skeleton; see README.md for what is planned.
+* :func:`generate` records episodes of a task's scripted expert (or random actions) into an
+  HDF5 file, resumably (:mod:`dax_data.record`); :func:`score` compares policies;
+* :func:`open_file` / :func:`load` read such files as NumPy (or JAX) arrays, checking the
+  schema (:mod:`dax_data.fileformat`; the layout is in README.md);
+* :func:`write_goals` writes goal files in dax-tasks' format (:mod:`dax_data.goalsets`);
+* :func:`export_episode` writes VTU / XDMF / PLY for ParaView and Blender
+  (:mod:`dax_data.export`);
+* the ``dax-data`` command line (:mod:`dax_data.cli`).
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -10,4 +17,29 @@ try:
 except PackageNotFoundError:  # imported from a source tree that was never installed
     __version__ = "0+unknown"
 
-__all__ = ["__version__"]
+from .fileformat import (  # noqa: E402  (h5py and NumPy only: no JAX import)
+    FORMAT_VERSION,
+    DataFileError,
+    DemoFile,
+    Episode,
+    load,
+    open_file,
+)
+
+# Imported on first use, so reading and validating files does not import JAX.
+_LAZY = {"export_episode": "export", "write_goal": "goalsets", "write_goals": "goalsets",
+         "Recorder": "record", "generate": "record", "score": "record"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'dax_data' has no attribute {name!r}")
+
+
+__all__ = [
+    "FORMAT_VERSION", "DataFileError", "DemoFile", "Episode", "Recorder", "__version__",
+    "export_episode", "generate", "load", "open_file", "score", "write_goal", "write_goals",
+]

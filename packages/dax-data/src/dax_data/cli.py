@@ -1,0 +1,179 @@
+"""The ``dax-data`` command line: generate, goals, inspect, validate, export, score.
+
+Errors a user can fix (a bad argument, a missing, truncated or corrupted file, a file made
+with other arguments, a newer format version) print one line ``dax-data: error: ...`` on
+stderr, without a traceback, and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from . import __version__
+from . import fileformat as ff
+
+EXIT_ERROR = 2
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dax-data", description=(
+        "Scripted-expert demonstrations, goal sets and exports for the DaX tasks."))
+    p.add_argument("--version", action="version", version=f"dax-data {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    g = sub.add_parser("generate", help="record episodes into an HDF5 file (resumable)")
+    g.add_argument("--task", required=True, help="task name, e.g. fold_cloth1")
+    g.add_argument("--episodes", required=True, type=_positive_int)
+    g.add_argument("--seed", type=_nonneg_int, default=0,
+                   help="seed of the first episode; episode i uses seed + i (default 0)")
+    g.add_argument("--out", required=True, help="output .h5 file")
+    g.add_argument("--policy", choices=("expert", "random"), default="expert")
+    g.add_argument("--point-stride", type=_positive_int, default=1, metavar="K",
+                   help="store the object points every K steps (and the last; default 1)")
+    g.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    o = sub.add_parser("goals", help="write goal files in dax-tasks' format")
+    o.add_argument("--task", required=True, help="task name or 'all'")
+    o.add_argument("--out", required=True, help="output directory")
+
+    i = sub.add_parser("inspect", help="summarise a demonstration file")
+    i.add_argument("file")
+    i.add_argument("--json", action="store_true")
+
+    v = sub.add_parser("validate", help="check a demonstration file completely")
+    v.add_argument("file")
+
+    e = sub.add_parser("export", help="export an episode for ParaView / Blender")
+    e.add_argument("file")
+    e.add_argument("--episode", type=_nonneg_int, required=True)
+    e.add_argument("--format", choices=("vtu", "xdmf", "ply"), required=True)
+    e.add_argument("--out", required=True, help="output directory")
+
+    s = sub.add_parser("score", help="expert and random final r_gt over seeds")
+    s.add_argument("--task", required=True)
+    s.add_argument("--seeds", type=_positive_int, default=20)
+    s.add_argument("--seed", type=_nonneg_int, default=0, help="first seed (default 0)")
+    s.add_argument("--json", action="store_true")
+    return p
+
+
+def _fmt_score(d: dict) -> str:
+    return f"{d['mean']:.4f} ± {d['sem']:.4f} (n={len(d['scores'])}, {d['seconds']:.1f} s)"
+
+
+def _generate(a) -> None:
+    from .record import generate
+
+    out = generate(a.task, a.episodes, a.seed, a.out, policy=a.policy,
+                   point_stride=a.point_stride, progress=not a.no_progress)
+    if a.json:
+        print(json.dumps(out, indent=1))
+        return
+    spe = out["seconds_per_episode"]
+    spe = f"{spe:.3f} s/episode (median)" if spe is not None else "nothing to record"
+    print(f"{out['path']}: {out['episodes']} episodes of {out['task']} "
+          f"({out['recorded_now']} new, {out['resumed_from']} kept), score "
+          f"{out['score_mean']:.4f} ± {out['score_sem']:.4f}, {spe}, "
+          f"{out['file_bytes']} bytes")
+
+
+def _goals(a) -> None:
+    from .goalsets import task_names, write_goal
+
+    for name in task_names(a.task):
+        r = write_goal(name, a.out)
+        print(f"{r['task']}: {r['points']} points -> {r['path']} ({r['seconds']:.1f} s)")
+
+
+def _inspect(a) -> None:
+    with ff.DemoFile(a.file) as f:
+        info = f.summary()
+        ep0 = f._f["episodes"][ff.episode_name(0)] if len(f) else None
+        shapes = ({k: list(ep0[k].shape) for k in ff.EPISODE_DATASETS}
+                  if ep0 is not None else {})
+    info["episode_0_shapes"] = shapes
+    if a.json:
+        print(json.dumps(info, indent=1))
+        return
+    print(f"{info['path']}: dax-data format version {info['format_version']}, "
+          f"task {info['task']}, {info['episodes']} episodes, {info['file_bytes']} bytes")
+    print(f"  generator: {json.dumps(info['generator'])}")
+    print(f"  versions:  {json.dumps(info['versions'])}")
+    print(f"  created:   {info['created_utc']}  fingerprint {info['fingerprint']}")
+    if info["episodes"]:
+        print(f"  score (final r_gt): {info['score_mean']:.4f} ± {info['score_sem']:.4f}")
+        print(f"  episode 0 shapes: {json.dumps(shapes)}")
+
+
+def _validate(a) -> None:
+    with ff.DemoFile(a.file) as f:
+        f.verify()
+        n, ver = len(f), f.meta["format_version"]
+    print(f"{a.file}: ok ({n} episodes, format version {ver})")
+
+
+def _export(a) -> None:
+    from .export import export_episode
+
+    paths = export_episode(a.file, a.episode, a.format, a.out)
+    print(f"wrote {len(paths)} files to {a.out}")
+
+
+def _score(a) -> None:
+    from .record import score
+
+    out = score(a.task, a.seeds, a.seed)
+    if a.json:
+        print(json.dumps(out, indent=1))
+        return
+    for policy in ("expert", "random"):
+        if policy in out:
+            print(f"{a.task} {policy}: final r_gt {_fmt_score(out[policy])}")
+    for policy in out["skipped"]:
+        print(f"{a.task} {policy}: not available for this task")
+
+
+COMMANDS = {"generate": _generate, "goals": _goals, "inspect": _inspect,
+            "validate": _validate, "export": _export, "score": _score}
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        COMMANDS[args.command](args)
+    except KeyboardInterrupt:
+        print("dax-data: interrupted; completed episodes are on disk, rerun the same command "
+              "to resume", file=sys.stderr)
+        return 130
+    except (ValueError, OSError, NotImplementedError) as err:  # DataFileError, GoalFileError
+        msg = " ".join(str(err).split()) or type(err).__name__
+        print(f"dax-data: error: {msg}", file=sys.stderr)
+        return EXIT_ERROR
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

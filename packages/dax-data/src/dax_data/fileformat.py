@@ -1,0 +1,494 @@
+"""The demonstration file format (HDF5, h5py): writing, reading and checking.
+
+The layout is documented in the package README ("File format"). In short::
+
+    /                      file attributes: format, format_version, task, fingerprint,
+                           versions, spec, units, scene_doc, generator, created_utc
+    /goal                  (N, 3) float32 [m], attribute ``provenance`` (JSON)
+    /episodes/000000       group per episode, attributes seed, policy, length, score
+        actions            (T, A) float32
+        observations       (T + 1, O) float32   (the reset observation first)
+        rewards            (T,) float32
+        r_gt               (T,) float32
+        points             (K, N, 3) float32 [m] object points at steps ``point_steps``
+        point_steps        (K,) int32           0, k, 2k, ... and always T
+        end_effector       (T + 1, 3) float32 [m]
+
+Every write goes to a temporary file in the same directory that is flushed, fsynced and
+renamed into place (:func:`append_episode`), so the file on disk is always complete: an
+interrupted run loses at most the episode it was recording. Nothing is pickled: metadata
+is JSON text in string attributes, data are plain numeric datasets (chunked, gzip with the
+shuffle filter, and a Fletcher-32 checksum per chunk so a corrupted chunk is detected).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+#: Identifies a dax-data demonstration file (the ``format`` attribute).
+FORMAT_NAME = "dax-data/demonstrations"
+#: The newest layout this version writes and reads. Files with a larger number are refused.
+FORMAT_VERSION = 1
+
+#: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
+#: checked against each other: T steps, A action dim, O observation dim, K point frames,
+#: N object points; integers are fixed sizes.
+EPISODE_DATASETS = {
+    "actions": ("float32", ("T", "A")),
+    "observations": ("float32", ("T+1", "O")),
+    "rewards": ("float32", ("T",)),
+    "r_gt": ("float32", ("T",)),
+    "points": ("float32", ("K", "N", 3)),
+    "point_steps": ("int32", ("K",)),
+    "end_effector": ("float32", ("T+1", 3)),
+}
+EPISODE_ATTRS = ("seed", "policy", "length", "score")
+FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "spec", "units",
+              "scene_doc", "generator", "created_utc")
+JSON_ATTRS = ("versions", "spec", "units", "generator")
+
+#: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
+#: attribute). Scene fields are SI; their units are in the scene class docstring, stored
+#: as the ``scene_doc`` attribute.
+UNITS = {
+    "spec.action_low": "m for push / pick_place actions (x, y, z, x', y', z'); "
+                       "m/s for velocity actions",
+    "spec.action_high": "as spec.action_low",
+    "spec.lam": "1/m",
+    "spec.horizon": "environment steps",
+    "spec.substeps": "physics substeps per environment step",
+    "spec.scene": "SI (m, kg, s, N, Pa, rad); see the scene_doc attribute",
+    "goal": "m",
+    "actions": "as spec.action_low",
+    "observations": "m (object points then end-effector position, unless the task "
+                    "defines its own observe)",
+    "rewards": "1 (r_gt, plus r_aux when spec.aux_reward)",
+    "r_gt": "1 (exp(-lam * D))",
+    "points": "m",
+    "end_effector": "m",
+    "score": "1 (r_gt after the last step)",
+}
+
+
+class DataFileError(ValueError):
+    """A demonstration file is missing, unreadable, truncated, of another format or a newer
+    format version, or does not match what was asked. The message names the file."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Episode:
+    """One recorded episode (NumPy arrays; see the module docstring for shapes)."""
+
+    index: int
+    seed: int
+    policy: str
+    score: float
+    actions: Any
+    observations: Any
+    rewards: Any
+    r_gt: Any
+    points: Any
+    point_steps: Any
+    end_effector: Any
+
+    @property
+    def length(self) -> int:
+        return int(self.actions.shape[0])
+
+
+def package_versions() -> dict:
+    """Versions of the packages a file depends on."""
+    out = {}
+    for dist in ("dax-data", "dax-tasks", "dax-physics", "jax", "numpy", "h5py"):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "unknown"
+    return out
+
+
+def _jsonable(value):
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return repr(value)
+
+
+def spec_to_json(spec) -> dict:
+    """A :class:`dax_tasks.TaskSpec` (with its scene) as JSON-compatible data."""
+    out = _jsonable(spec)
+    scene = getattr(spec, "scene", None)
+    if scene is not None:
+        out["scene_class"] = f"{type(scene).__module__}.{type(scene).__qualname__}"
+    return out
+
+
+def header(task, generator: dict) -> dict:
+    """The file attributes of a new file for ``task`` (a :class:`dax_tasks.Task`)."""
+    import inspect
+
+    from dax_tasks import goals
+
+    spec = task.spec
+    scene_doc = inspect.getdoc(type(spec.scene)) if spec.scene is not None else ""
+    return {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "task": spec.name,
+        "fingerprint": goals.fingerprint(spec),
+        "versions": package_versions(),
+        "spec": spec_to_json(spec),
+        "units": UNITS,
+        "scene_doc": scene_doc or "",
+        "generator": generator,
+        "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+    }
+
+
+# ---------------------------------------------------------------------- writing
+#: HDF5 1.10 object formats (readable by HDF5 >= 1.10, 2016): compact chunk indexes, about
+#: 2.5x smaller files than the 1.8-compatible default for short episodes.
+LIBVER = ("v110", "v110")
+_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
+                "fletcher32": True}
+
+
+def _write_array(group: h5py.Group, name: str, data) -> None:
+    data = np.ascontiguousarray(data)
+    if data.size == 0:
+        group.create_dataset(name, data=data)
+    else:
+        group.create_dataset(name, data=data, chunks=True, **_COMPRESSION)
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. platforms without directory fds
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _atomic_update(path: Path, copy_existing: bool) -> Iterator[Path]:
+    """Yield a temporary path in ``path``'s directory (a copy of ``path`` when
+    ``copy_existing``); on success fsync it and rename it onto ``path``, else delete it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        if copy_existing:
+            shutil.copyfile(path, tmp)
+            shutil.copymode(path, tmp)
+        else:  # mkstemp makes the file private (0600); give it the usual umask permissions
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        yield tmp
+        with open(tmp, "rb+") as f:
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def stale_temporaries(path: str | os.PathLike) -> list:
+    """Temporary files a killed writer of ``path`` left behind."""
+    path = Path(path)
+    return sorted(path.parent.glob(f".{path.name}.*.tmp"))
+
+
+def create(path: str | os.PathLike, attrs: dict, goal, goal_provenance: dict) -> Path:
+    """Write a new file with ``attrs`` (see :func:`header`), the goal and no episodes,
+    atomically (replacing any file at ``path``)."""
+    path = Path(path)
+    with (_atomic_update(path, copy_existing=False) as tmp,
+          h5py.File(tmp, "w", libver=LIBVER) as f):
+        for key, value in attrs.items():
+            f.attrs[key] = json.dumps(value) if key in JSON_ATTRS else value
+        ds = f.create_dataset("goal", data=np.asarray(goal, np.float32))
+        ds.attrs["provenance"] = json.dumps(_jsonable(goal_provenance))
+        ds.attrs["units"] = "m"
+        f.create_group("episodes")
+    return path
+
+
+def episode_name(index: int) -> str:
+    return f"{index:06d}"
+
+
+def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
+                   arrays: dict) -> None:
+    """Add episode ``index`` to the file at ``path``: copy the file to a temporary file,
+    add the group there, fsync, rename over ``path``. ``arrays`` holds the datasets of
+    :data:`EPISODE_DATASETS`."""
+    path = Path(path)
+    missing = sorted(set(EPISODE_DATASETS) - set(arrays))
+    if missing:
+        raise ValueError(f"episode arrays missing: {missing}")
+    r_gt = np.asarray(arrays["r_gt"], np.float32)
+    with (_atomic_update(path, copy_existing=True) as tmp,
+          h5py.File(tmp, "a", libver=LIBVER) as f):
+        name = episode_name(index)
+        if name in f["episodes"]:
+            raise DataFileError(f"{path}: episode {index} is already in the file")
+        g = f["episodes"].create_group(name)
+        g.attrs["seed"] = int(seed)
+        g.attrs["policy"] = str(policy)
+        g.attrs["length"] = int(r_gt.shape[0])
+        g.attrs["score"] = float(r_gt[-1]) if r_gt.size else float("nan")
+        for key, (dtype, _) in EPISODE_DATASETS.items():
+            _write_array(g, key, np.asarray(arrays[key], dtype))
+
+
+# ---------------------------------------------------------------------- reading
+class DemoFile:
+    """A demonstration file opened for reading; the schema is checked on open.
+
+    ``meta``: the file attributes (JSON ones decoded); ``goal``: (N, 3) [m];
+    ``goal_provenance``: dict; ``len(f)``: the number of episodes; ``f[k]``: episode ``k``
+    as an :class:`Episode` of NumPy arrays (``as_jax=True`` in :meth:`episode` gives JAX
+    arrays). Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DataFileError(f"{self.path}: file not found")
+        try:
+            self._f = h5py.File(self.path, "r")
+        except OSError as err:
+            raise DataFileError(f"{self.path}: not a readable HDF5 file, truncated or "
+                                f"corrupted ({_short(err)})") from None
+        try:
+            self._check_schema()
+        except DataFileError:
+            self._f.close()
+            raise
+        except (OSError, KeyError, ValueError, TypeError) as err:
+            self._f.close()
+            raise DataFileError(f"{self.path}: unreadable metadata, truncated or corrupted "
+                                f"({_short(err)})") from None
+
+    # -- schema
+    def _fail(self, problem: str):
+        raise DataFileError(f"{self.path}: {problem}")
+
+    def _check_schema(self) -> None:
+        f = self._f
+        fmt = f.attrs.get("format")
+        if _text(fmt) != FORMAT_NAME:
+            self._fail(f"not a dax-data demonstration file (format attribute {fmt!r})")
+        ver = f.attrs.get("format_version")
+        if ver is None or not np.issubdtype(np.asarray(ver).dtype, np.integer):
+            self._fail(f"missing or non-integer format_version ({ver!r})")
+        ver = int(ver)
+        if ver > FORMAT_VERSION:
+            self._fail(f"format version {ver} is newer than this dax-data reads "
+                       f"(up to {FORMAT_VERSION}); upgrade dax-data")
+        if ver < 1:
+            self._fail(f"invalid format version {ver}")
+        meta = {}
+        for key in FILE_ATTRS:
+            if key not in f.attrs:
+                self._fail(f"missing file attribute {key!r}")
+            value = f.attrs[key]
+            if key in JSON_ATTRS:
+                try:
+                    value = json.loads(_text(value))
+                except (TypeError, ValueError):
+                    self._fail(f"file attribute {key!r} is not valid JSON")
+            elif key == "format_version":
+                value = int(value)
+            else:
+                value = _text(value)
+            meta[key] = value
+        self.meta = meta
+        if "goal" not in f or not isinstance(f["goal"], h5py.Dataset):
+            self._fail("missing dataset /goal")
+        goal = f["goal"]
+        if goal.ndim != 2 or goal.shape[1] != 3:
+            self._fail(f"/goal must have shape (N, 3), got {goal.shape}")
+        if "episodes" not in f or not isinstance(f["episodes"], h5py.Group):
+            self._fail("missing group /episodes")
+        names = sorted(f["episodes"].keys())
+        expected = [episode_name(i) for i in range(len(names))]
+        if names != expected:
+            self._fail(f"episode groups must be numbered 000000.. without gaps, got "
+                       f"{names[:5]}{'...' if len(names) > 5 else ''}")
+        obs_dim = act_dim = n_points = None
+        for name in names:
+            g = f["episodes"][name]
+            where = f"episode {int(name)}"
+            if not isinstance(g, h5py.Group):
+                self._fail(f"{where} is not a group")
+            for key in EPISODE_ATTRS:
+                if key not in g.attrs:
+                    self._fail(f"{where}: missing attribute {key!r}")
+            sizes = {"T": int(g.attrs["length"]), "A": act_dim, "O": obs_dim, "N": n_points}
+            for key, (dtype, dims) in EPISODE_DATASETS.items():
+                if key not in g or not isinstance(g[key], h5py.Dataset):
+                    self._fail(f"{where}: missing dataset {key!r}")
+                ds = g[key]
+                if ds.dtype != np.dtype(dtype):
+                    self._fail(f"{where}: dataset {key!r} has dtype {ds.dtype}, "
+                               f"expected {dtype}")
+                if ds.ndim != len(dims):
+                    self._fail(f"{where}: dataset {key!r} has {ds.ndim} dimensions, "
+                               f"expected {len(dims)} {dims}")
+                for size, dim in zip(ds.shape, dims, strict=True):
+                    want = dim
+                    if isinstance(dim, str):
+                        base = dim.removesuffix("+1")
+                        plus = 1 if dim.endswith("+1") else 0
+                        if sizes.get(base) is None:
+                            sizes[base] = size - plus
+                        want = sizes[base] + plus
+                    if size != want:
+                        self._fail(f"{where}: dataset {key!r} has shape {ds.shape}, "
+                                   f"expected {dims} with {sizes}")
+            if sizes["N"] != goal.shape[0]:
+                self._fail(f"{where}: {sizes['N']} object points but the goal has "
+                           f"{goal.shape[0]}")
+            act_dim, obs_dim, n_points = sizes["A"], sizes["O"], sizes["N"]
+        self._names = names
+
+    # -- access
+    @property
+    def goal(self) -> np.ndarray:
+        return np.asarray(self._f["goal"][()], np.float32)
+
+    @property
+    def goal_provenance(self) -> dict:
+        return json.loads(_text(self._f["goal"].attrs["provenance"]))
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __getitem__(self, k: int) -> Episode:
+        return self.episode(k)
+
+    def __iter__(self):
+        for k in range(len(self)):
+            yield self.episode(k)
+
+    def episode(self, k: int, as_jax: bool = False) -> Episode:
+        if not (isinstance(k, (int, np.integer)) and 0 <= k < len(self)):
+            raise DataFileError(f"{self.path}: no episode {k!r} (the file has {len(self)}: "
+                                f"0..{len(self) - 1})")
+        g = self._f["episodes"][episode_name(int(k))]
+        try:
+            arrays = {key: g[key][()] for key in EPISODE_DATASETS}
+        except (OSError, ValueError) as err:
+            raise DataFileError(f"{self.path}: episode {k}: data unreadable, truncated or "
+                                f"corrupted ({_short(err)})") from None
+        if as_jax:
+            import jax.numpy as jnp
+
+            arrays = {key: jnp.asarray(v) for key, v in arrays.items()}
+        return Episode(index=int(k), seed=int(g.attrs["seed"]),
+                       policy=_text(g.attrs["policy"]), score=float(g.attrs["score"]),
+                       **arrays)
+
+    def summary(self) -> dict:
+        """A JSON-compatible summary: metadata, episode count and scores."""
+        scores = [float(self._f["episodes"][n].attrs["score"]) for n in self._names]
+        seeds = [int(self._f["episodes"][n].attrs["seed"]) for n in self._names]
+        out = {"path": str(self.path), **{k: v for k, v in self.meta.items()
+                                           if k != "scene_doc"},
+               "episodes": len(self), "seeds": seeds, "scores": scores,
+               "goal_points": int(self._f["goal"].shape[0]),
+               "file_bytes": self.path.stat().st_size}
+        if scores:
+            out["score_mean"] = float(np.mean(scores))
+            out["score_sem"] = sem(scores)
+        return out
+
+    def verify(self) -> None:
+        """Read every dataset (checking HDF5 checksums) and check values are finite and
+        consistent (score = last r_gt, point_steps increasing and ending at T)."""
+        _ = self.goal
+        if not np.all(np.isfinite(self.goal)):
+            self._fail("/goal contains NaN or inf")
+        for k in range(len(self)):
+            ep = self.episode(k)
+            for key in ("actions", "observations", "rewards", "r_gt", "points",
+                        "end_effector"):
+                if not np.all(np.isfinite(getattr(ep, key))):
+                    self._fail(f"episode {k}: dataset {key!r} contains NaN or inf")
+            steps = ep.point_steps
+            if steps.size == 0 or steps[-1] != ep.length or np.any(np.diff(steps) <= 0) \
+                    or steps[0] != 0:
+                self._fail(f"episode {k}: point_steps must increase from 0 to the episode "
+                           f"length {ep.length}, got {steps.tolist()}")
+            if ep.length and not np.float32(ep.score) == ep.r_gt[-1]:
+                self._fail(f"episode {k}: score {ep.score} is not the last r_gt "
+                           f"{float(ep.r_gt[-1])}")
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def open_file(path: str | os.PathLike) -> DemoFile:
+    """Open a demonstration file for reading (schema checked); see :class:`DemoFile`."""
+    return DemoFile(path)
+
+
+def load(path: str | os.PathLike, as_jax: bool = False) -> tuple[dict, list[Episode]]:
+    """``(meta, episodes)``: the file attributes and every episode, as NumPy (or JAX)."""
+    with DemoFile(path) as f:
+        return f.meta, [f.episode(k, as_jax=as_jax) for k in range(len(f))]
+
+
+def sem(values) -> float:
+    """Standard error of the mean (sample standard deviation / sqrt(n); 0 for n < 2)."""
+    v = np.asarray(values, np.float64)
+    return float(v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else 0.0
+
+
+def _text(value) -> str:
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _text(value.item())
+    return value if isinstance(value, str) else str(value)
+
+
+def _short(err: BaseException) -> str:
+    return " ".join(str(err).split())[:200]

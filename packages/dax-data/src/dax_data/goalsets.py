@@ -1,0 +1,51 @@
+"""Goal sets: each task's goal particle set written in dax-tasks' goal-file format.
+
+``write_goals(["fold_cloth1"], out_dir)`` computes each goal with the task's own canonical
+motion (:func:`dax_tasks.goals.compute_goal`, the code the task itself falls back to, not a
+second copy) and writes it with :func:`dax_tasks.goals.save_goal` (atomic) under the name
+:func:`dax_tasks.goals.goal_file` gives, so a task reads it with
+``dax_tasks.make(name, goal_path=file)``, or from the cache when ``out_dir`` is
+``$DAX_CACHE_DIR/goals``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from . import __version__
+
+
+def task_names(task: str) -> list:
+    """``[task]``, or every task implemented in dax-tasks for ``"all"``."""
+    import dax_tasks
+
+    if task == "all":
+        return list(dax_tasks.available())
+    if task not in dax_tasks.TASKS:
+        raise ValueError(f"unknown task {task!r}; valid: all, {', '.join(dax_tasks.TASKS)}")
+    if task not in dax_tasks.available():
+        raise ValueError(f"task {task!r} is not implemented in the installed dax-tasks; "
+                         f"available: {', '.join(dax_tasks.available())}")
+    return [task]
+
+
+def write_goal(name: str, out_dir, spec=None) -> dict:
+    """Compute and write the goal of task ``name`` (default spec unless ``spec``) into
+    ``out_dir``; returns ``{"task", "path", "points", "seconds"}``."""
+    import dax_tasks
+    from dax_tasks import goals
+
+    defn = dax_tasks.get_definition(name)
+    spec = defn.spec if spec is None else spec
+    t0 = time.perf_counter()
+    pts = goals.compute_goal(defn, spec)
+    prov = goals.provenance(spec, f"goal(spec) of dax_tasks.{name}, written by dax-data goals",
+                            dax_data=__version__)
+    path = goals.save_goal(goals.goal_file(spec, Path(out_dir)), pts, prov)
+    return {"task": name, "path": str(path), "points": int(pts.shape[0]),
+            "seconds": time.perf_counter() - t0}
+
+
+def write_goals(names, out_dir) -> list:
+    return [write_goal(n, out_dir) for n in names]

@@ -1,0 +1,244 @@
+"""Recording episodes of a policy (the task's scripted expert, or uniform random actions)
+into a demonstration file, resumably; and scoring policies over seeds.
+
+Episode ``i`` of a run with ``seed=S`` uses seed ``S + i``: the task is reset with
+``jax.random.PRNGKey(S + i)``; the random policy draws step ``t``'s action uniformly within
+the action bounds with key ``fold_in(fold_in(PRNGKey(S + i), 1), t)``. So every episode can
+be regenerated from (task, spec, seed, policy, package versions), all stored in the file.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import fileformat as ff
+from .fileformat import DataFileError
+
+POLICIES = ("expert", "random")
+
+
+def make_task(name: str, batch_size: int | None = None, overrides: dict | None = None):
+    """``dax_tasks.make(name, ...)`` with a clear error for an unknown or missing task."""
+    import dax_tasks
+
+    try:
+        return dax_tasks.make(name, batch_size=batch_size, **(overrides or {}))
+    except NotImplementedError as err:
+        raise ValueError(str(err)) from None
+
+
+def _check_policy(task, policy: str) -> None:
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
+    if policy == "expert" and not task.has_expert:
+        raise ValueError(f"task {task.spec.name!r} has no scripted expert; "
+                         f"use --policy random")
+
+
+def _random_action(spec, episode_key, t):
+    low = jnp.asarray(spec.action_low, jnp.float32)
+    high = jnp.asarray(spec.action_high, jnp.float32)
+    key = jax.random.fold_in(jax.random.fold_in(episode_key, 1), t)
+    return jax.random.uniform(key, low.shape, jnp.float32, low, high)
+
+
+class Recorder:
+    """Runs single episodes of one task (unbatched) and returns their arrays."""
+
+    def __init__(self, task, policy: str = "expert", point_stride: int = 1):
+        _check_policy(task, policy)
+        if task.batch_size is not None:
+            raise ValueError("the recorder needs an unbatched task (batch_size=None)")
+        if not (isinstance(point_stride, int) and point_stride > 0):
+            raise ValueError(f"point_stride must be a positive int, got {point_stride!r}")
+        self.task, self.policy, self.point_stride = task, policy, point_stride
+        defn, spec = task.defn, task.spec
+        self._probe = jax.jit(lambda s: (defn.object_points(spec, s.physics),
+                                         defn.end_effector(spec, s.physics)))
+        self._random = jax.jit(lambda k, t: _random_action(spec, k, t))
+
+    def point_steps(self, length: int) -> np.ndarray:
+        steps = list(range(0, length + 1, self.point_stride))
+        if steps[-1] != length:
+            steps.append(length)
+        return np.asarray(steps, np.int32)
+
+    def action(self, state, episode_key, t: int):
+        if self.policy == "expert":
+            return self.task.expert_action(state)
+        return self._random(episode_key, t)
+
+    def episode(self, seed: int) -> dict:
+        """The arrays of one episode from seed ``seed`` (see :mod:`dax_data.fileformat`)."""
+        task = self.task
+        key = jax.random.PRNGKey(seed)
+        obs, state = task.reset(key)
+        observations, actions, rewards, r_gt, ee, points = [np.asarray(obs)], [], [], [], [], {}
+        pts, e = self._probe(state)
+        points[0], ee0 = np.asarray(pts), np.asarray(e)
+        ee.append(ee0)
+        for t in range(task.horizon):
+            action = self.action(state, key, t)
+            obs, state, reward, done, info = task.step(state, action)
+            actions.append(np.asarray(action))
+            observations.append(np.asarray(obs))
+            rewards.append(np.asarray(reward))
+            r_gt.append(np.asarray(info["r_gt"]))
+            pts, e = self._probe(state)
+            ee.append(np.asarray(e))
+            if (t + 1) % self.point_stride == 0 or bool(done):
+                points[t + 1] = np.asarray(pts)
+            if bool(done):
+                break
+        length = len(actions)
+        steps = self.point_steps(length)
+        return {"actions": np.stack(actions), "observations": np.stack(observations),
+                "rewards": np.stack(rewards), "r_gt": np.stack(r_gt),
+                "points": np.stack([points[int(s)] for s in steps]), "point_steps": steps,
+                "end_effector": np.stack(ee)}
+
+
+def _generator_args(task_name, seed, policy, point_stride, overrides) -> dict:
+    return {"task": task_name, "seed": int(seed), "policy": policy,
+            "point_stride": int(point_stride), "overrides": ff._jsonable(overrides or {})}
+
+
+def _check_args(path: Path, f: ff.DemoFile, args: dict, episodes: int) -> None:
+    """Refuse to resume ``f`` if it was made with other generator arguments."""
+    old = dict(f.meta["generator"])
+    old_n = old.pop("episodes", None)
+    for key, value in args.items():
+        if old.get(key) != value:
+            raise DataFileError(
+                f"{path}: exists with {key}={json.dumps(old.get(key))}, not "
+                f"{json.dumps(value)}; rerun with the file's arguments to resume, or choose "
+                f"another --out")
+    if len(f) > episodes:
+        raise DataFileError(f"{path}: already holds {len(f)} episodes, more than the "
+                            f"{episodes} asked for (the file was made with --episodes "
+                            f"{old_n})")
+
+
+def _check_task(path: Path, f: ff.DemoFile, task) -> None:
+    """Refuse to resume ``f`` if it was made with another spec, code or goal."""
+    new_spec = ff.spec_to_json(task.spec)
+    if f.meta["spec"] != json.loads(json.dumps(new_spec)):
+        raise DataFileError(f"{path}: was made with another task spec; choose another --out")
+    from dax_tasks import goals
+
+    fp = goals.fingerprint(task.spec)
+    if f.meta["fingerprint"] != fp:
+        raise DataFileError(
+            f"{path}: was made by other dax-tasks/dax-physics code (fingerprint "
+            f"{f.meta['fingerprint']}, now {fp}); its episodes could not be reproduced, "
+            f"so it is not extended; choose another --out")
+    if not np.array_equal(f.goal, np.asarray(task.goal, np.float32)):
+        raise DataFileError(f"{path}: was made with another goal than the task's current "
+                            f"one ({task.goal_provenance.get('method', '?')})")
+
+
+def generate(task_name: str, episodes: int, seed: int, out, policy: str = "expert",
+             point_stride: int = 1, overrides: dict | None = None,
+             progress: bool = True) -> dict:
+    """Record ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) into ``out``.
+
+    If ``out`` exists and was made with the same task, seed, policy, point stride, spec,
+    code and goal, its episodes are kept and only the missing ones are recorded (an
+    interrupted run resumes; a larger ``episodes`` extends the file). Each episode is
+    committed atomically. Returns a summary: episodes recorded now, seconds per episode,
+    file size, scores.
+    """
+    if not (isinstance(episodes, int) and episodes > 0):
+        raise ValueError(f"episodes must be a positive int, got {episodes!r}")
+    path = Path(out)
+    if path.exists() and not path.is_file():
+        raise ValueError(f"{path}: exists and is not a file")
+    args = _generator_args(task_name, seed, policy, point_stride, overrides)
+    if path.exists():  # check the file and the arguments first: they fail fast
+        with ff.DemoFile(path) as f:
+            _check_args(path, f, args, episodes)
+    task = make_task(task_name, overrides=overrides)
+    recorder = Recorder(task, policy, point_stride)
+    for stale in ff.stale_temporaries(path):  # left by a killed writer of this file
+        stale.unlink(missing_ok=True)
+    if path.exists():
+        with ff.DemoFile(path) as f:
+            _check_task(path, f, task)
+            done = len(f)
+    else:
+        attrs = ff.header(task, {**args, "episodes": episodes})
+        ff.create(path, attrs, task.goal, task.goal_provenance)
+        done = 0
+    _set_target(path, args, episodes)
+    from tqdm.auto import tqdm
+
+    times = []
+    with tqdm(total=episodes, initial=done, desc=f"{task_name} ({policy})", unit="ep",
+              disable=not progress, dynamic_ncols=True) as bar:
+        for i in range(done, episodes):
+            t0 = time.perf_counter()
+            arrays = recorder.episode(seed + i)
+            ff.append_episode(path, i, seed + i, policy, arrays)
+            times.append(time.perf_counter() - t0)
+            bar.set_postfix(score=f"{float(arrays['r_gt'][-1]):.3f}")
+            bar.update(1)
+    with ff.DemoFile(path) as f:
+        summary = f.summary()
+    summary.update(recorded_now=len(times), resumed_from=done,
+                   seconds_per_episode=float(np.median(times)) if times else None,
+                   first_episode_seconds=times[0] if times else None)
+    return summary
+
+
+def _set_target(path: Path, args: dict, episodes: int) -> None:
+    """Record the requested episode count in the ``generator`` attribute (atomically)."""
+    with ff.DemoFile(path) as f:
+        current = f.meta["generator"].get("episodes")
+    if current == episodes:
+        return
+    import h5py
+
+    with (ff._atomic_update(path, copy_existing=True) as tmp,
+          h5py.File(tmp, "a", libver=ff.LIBVER) as h):
+        h.attrs["generator"] = json.dumps({**args, "episodes": episodes})
+
+
+# ---------------------------------------------------------------------- scoring
+def score(task_name: str, seeds: int = 20, seed: int = 0,
+          policies: tuple = POLICIES, overrides: dict | None = None) -> dict:
+    """Final-step ``r_gt`` of each policy over seeds ``seed .. seed + seeds - 1`` (the
+    episode seeds of :func:`generate`), run as one batch: ``{policy: {"mean", "sem",
+    "scores"}}`` plus timing. Policies without an implementation on this task are skipped
+    (e.g. ``expert`` for a task without one) and listed under ``"skipped"``."""
+    if not (isinstance(seeds, int) and seeds > 0):
+        raise ValueError(f"seeds must be a positive int, got {seeds!r}")
+    task = make_task(task_name, batch_size=seeds, overrides=overrides)
+    spec = task.spec
+    keys = jnp.stack([jax.random.PRNGKey(seed + i) for i in range(seeds)])
+    rand = jax.jit(jax.vmap(lambda k, t: _random_action(spec, k, t), in_axes=(0, None)))
+    out = {"task": task_name, "seeds": list(range(seed, seed + seeds)),
+           "horizon": task.horizon, "skipped": []}
+    for policy in policies:
+        try:
+            _check_policy(task, policy)
+        except ValueError:
+            out["skipped"].append(policy)
+            continue
+        t0 = time.perf_counter()
+        _, state = task.reset(keys)
+        r = None
+        for t in range(task.horizon):
+            action = task.expert_action(state) if policy == "expert" else rand(keys, t)
+            _, state, _, done, info = task.step(state, action)
+            r = np.asarray(info["r_gt"], np.float64)
+            if bool(np.all(np.asarray(done))):
+                break
+        out[policy] = {"mean": float(r.mean()), "sem": ff.sem(r), "scores": r.tolist(),
+                       "seconds": time.perf_counter() - t0}
+    return out

@@ -1,0 +1,148 @@
+"""The HDF5 demonstration format: exact round trips, schema checks, refusals (in-process)."""
+
+import json
+
+import h5py
+import jax
+import numpy as np
+import pytest
+
+import dax_data
+from dax_data import fileformat as ff
+from dax_data.record import Recorder, make_task
+
+
+@pytest.fixture(scope="module")
+def cloth(tmp_path_factory):
+    """fold_cloth1 at its default resolution, 2 expert episodes from seed 3."""
+    path = tmp_path_factory.mktemp("ff") / "fold.h5"
+    out = dax_data.generate("fold_cloth1", 2, 3, path, progress=False)
+    return path, out
+
+
+def test_generated_episodes_equal_a_fresh_recording_exactly(cloth):
+    path, _ = cloth
+    recorder = Recorder(make_task("fold_cloth1"), "expert", 1)
+    meta, episodes = dax_data.load(path)
+    assert meta["task"] == "fold_cloth1" and meta["format_version"] == ff.FORMAT_VERSION
+    assert [e.seed for e in episodes] == [3, 4], f"got seeds {[e.seed for e in episodes]}"
+    for ep in episodes:
+        fresh = recorder.episode(ep.seed)
+        for key, value in fresh.items():
+            got = getattr(ep, key)
+            assert got.dtype == np.dtype(ff.EPISODE_DATASETS[key][0])
+            np.testing.assert_array_equal(got, value, err_msg=f"{key} of seed {ep.seed}")
+        assert ep.score == pytest.approx(float(fresh["r_gt"][-1]), abs=0)
+
+
+def test_file_records_spec_versions_units_and_goal(cloth):
+    path, _ = cloth
+    with dax_data.open_file(path) as f:
+        meta = f.meta
+        assert meta["spec"]["scene_class"] == "dax_tasks._cloth.ClothScene"
+        assert meta["spec"]["lam"] == 10.0 and meta["spec"]["scene"]["n"] == 11
+        assert {"dax-data", "dax-tasks", "dax-physics", "jax", "h5py"} <= set(meta["versions"])
+        assert meta["units"]["points"] == "m" and "dt" in meta["scene_doc"]
+        assert meta["generator"] == {"task": "fold_cloth1", "seed": 3, "policy": "expert",
+                                     "point_stride": 1, "overrides": {}, "episodes": 2}
+        task = make_task("fold_cloth1")
+        np.testing.assert_array_equal(f.goal, task.goal)
+        ep = f.episode(1, as_jax=True)
+        assert isinstance(ep.actions, jax.Array) and ep.actions.shape == (3, 6)
+        f.verify()
+
+
+def test_datasets_are_chunked_compressed_and_checksummed(cloth):
+    with h5py.File(cloth[0], "r") as f:
+        ds = f["episodes/000000/observations"]
+        assert ds.chunks is not None and ds.compression == "gzip" and ds.fletcher32
+
+
+def test_point_stride_keeps_every_kth_frame_and_the_last(tmp_path):
+    rec = Recorder(make_task("fold_cloth1"), "random", 2)
+    arrays = rec.episode(0)
+    assert arrays["point_steps"].tolist() == [0, 2, 3]
+    assert arrays["points"].shape == (3, 121, 3)
+    # the last stored frame is the final state the last observation shows
+    np.testing.assert_array_equal(arrays["points"][-1].reshape(-1),
+                                  arrays["observations"][-1][:-3])
+
+
+def _rewrite_attr(path, key, value):
+    with h5py.File(path, "a") as f:
+        f.attrs[key] = value
+
+
+def test_newer_format_version_is_refused(cloth, tmp_path):
+    path = tmp_path / "newer.h5"
+    path.write_bytes(cloth[0].read_bytes())
+    _rewrite_attr(path, "format_version", ff.FORMAT_VERSION + 1)
+    with pytest.raises(dax_data.DataFileError, match="newer than this dax-data reads"):
+        dax_data.open_file(path)
+
+
+def test_schema_violations_are_named(cloth, tmp_path):
+    path = tmp_path / "bad.h5"
+    path.write_bytes(cloth[0].read_bytes())
+    with h5py.File(path, "a") as f:
+        del f["episodes/000001/rewards"]
+        f["episodes/000001"].create_dataset("rewards", data=np.zeros(5, np.float32))
+    with pytest.raises(dax_data.DataFileError, match=r"episode 1: dataset 'rewards' has shape"):
+        dax_data.open_file(path)
+    _rewrite_attr(path, "format", "something-else")
+    with pytest.raises(dax_data.DataFileError, match="not a dax-data demonstration file"):
+        dax_data.open_file(path)
+
+
+def test_truncated_and_foreign_files_are_refused(cloth, tmp_path):
+    data = cloth[0].read_bytes()
+    trunc = tmp_path / "trunc.h5"
+    trunc.write_bytes(data[: len(data) // 2])
+    with pytest.raises(dax_data.DataFileError, match="truncated"):
+        dax_data.open_file(trunc)
+    text = tmp_path / "text.h5"
+    text.write_text("hello")
+    with pytest.raises(dax_data.DataFileError, match="not a readable HDF5 file"):
+        dax_data.open_file(text)
+
+
+def test_corrupted_chunk_is_detected_by_verify(cloth, tmp_path):
+    path = tmp_path / "flip.h5"
+    path.write_bytes(cloth[0].read_bytes())
+    with h5py.File(path, "r") as f:
+        info = f["episodes/000001/points"].id.get_chunk_info(0)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(b"\x00\xff" * 8)
+    with dax_data.open_file(path) as f, pytest.raises(dax_data.DataFileError,
+                                                      match="episode 1: data unreadable"):
+        f.verify()
+
+
+def test_nothing_is_pickled(cloth):
+    with h5py.File(cloth[0], "r") as f:
+        def check(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                assert obj.dtype.kind in "fiu", f"{name} has dtype {obj.dtype}"
+            for key, value in obj.attrs.items():
+                assert isinstance(value, (str, bytes, int, float, np.number)), (name, key)
+        check("/", f)
+        f.visititems(check)
+        json.loads(f.attrs["spec"])
+
+
+def test_generate_with_more_episodes_extends_the_file_keeping_earlier_ones(tmp_path):
+    path = tmp_path / "grow.h5"
+    first = dax_data.generate("fold_cloth1", 1, 7, path, policy="random", progress=False)
+    assert first["recorded_now"] == 1
+    before = dax_data.load(path)[1][0]
+    second = dax_data.generate("fold_cloth1", 2, 7, path, policy="random", progress=False)
+    assert (second["resumed_from"], second["recorded_now"]) == (1, 1), second
+    meta, episodes = dax_data.load(path)
+    assert meta["generator"]["episodes"] == 2 and [e.seed for e in episodes] == [7, 8]
+    for key in ff.EPISODE_DATASETS:
+        np.testing.assert_array_equal(getattr(episodes[0], key), getattr(before, key))
+    again = dax_data.generate("fold_cloth1", 2, 7, path, policy="random", progress=False)
+    assert again["recorded_now"] == 0
+    with pytest.raises(dax_data.DataFileError, match="already holds 2 episodes"):
+        dax_data.generate("fold_cloth1", 1, 7, path, policy="random", progress=False)
