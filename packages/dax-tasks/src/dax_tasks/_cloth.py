@@ -135,7 +135,14 @@ def grasp_set(scene: ClothScene, x, pick, contact_adjustment: bool):
         centre = jax.lax.stop_gradient(pick)
         start = pick
     r = scene.grasp_radius * scene.mesh_spacing
-    grip = (jnp.sum((xs - centre) ** 2, -1) <= r * r).astype(x.dtype)
+    # Only the layer under the fingers: the vertices near the centre in space *and* on the
+    # cloth (rest positions) of the vertex nearest to it. Without that, a pick on a folded
+    # cloth would also lift the layer below (there is no self-collision to separate them).
+    rest = jnp.asarray(_cloth_np(scene)[0], x.dtype)
+    k = jnp.argmin(jnp.sum((xs - centre) ** 2, -1))
+    near = jnp.sum((xs - centre) ** 2, -1) <= r * r
+    same_layer = jnp.sum((rest - rest[k]) ** 2, -1) <= r * r
+    grip = (near & same_layer).astype(x.dtype)
     return grip, start
 
 
