@@ -1,0 +1,304 @@
+"""The benchmark runner: every task x method x seed, evaluated with r_gt only.
+
+``dax-bench run --tasks T1,T2|all --methods M1,M2|all --seeds K [--quick] --out DIR``
+
+For each task the runner builds it once (``dax_tasks.make``), for each method it builds and
+compiles the episode once (``jax.jit(...).lower(key).compile()``, timed as ``compile_s``),
+then runs seeds ``0..K-1``: seed ``k`` uses ``PRNGKey(k)`` (the initial state comes from
+``fold_in(key, 0)``, the same for every method). The **episode score is the final-step
+``r_gt``**. Every finished run is appended to ``results.csv`` at once (one flushed, fsynced
+write per row); started again, the runner skips the (task, method, seed, budget) rows already
+there. At the end it rewrites ``results.md`` (mean ± standard error, methods x tasks) and
+``chart_<task>.png`` (score against wall time and simulated environment steps).
+
+A run fails (``status=failed``, cause in ``error``) when it raises, when a state, action or
+reward turns non-finite (the task's ``finite`` flag), or when a gradient is non-finite
+(unless the method zeroes NaNs); the grid continues. ``status=skipped``: the method does not
+apply to the task (e.g. no scripted expert).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import math
+import os
+import sys
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+import dax_tasks
+
+from . import registry, report
+
+COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
+           "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
+           "nonfinite_grads", "error")
+
+
+def _task_names():
+    return dax_tasks.TASKS, dax_tasks.available()
+
+
+def resolve_tasks(spec: str | Iterable[str]) -> list[str]:
+    """Task names from ``"all"`` (the available ones), ``"a,b"`` or a list; ValueError
+    listing the valid names for an unknown or not yet implemented one."""
+    declared, available = _task_names()
+    names = _split(spec)
+    if names == ["all"]:
+        return list(available)
+    for n in names:
+        if n not in declared:
+            raise ValueError(f"unknown task {n!r}; valid: {', '.join(declared)} or all")
+        if n not in available:
+            raise ValueError(f"task {n!r} is not implemented yet; available: "
+                             f"{', '.join(available)}")
+    return list(dict.fromkeys(names))
+
+
+def resolve_methods(spec: str | Iterable[str]) -> list[str]:
+    """Method names from ``"all"``, ``"a,b"`` or a list; ValueError for an unknown one."""
+    names = _split(spec)
+    if names == ["all"]:
+        return list(registry.names())
+    for n in names:
+        registry.get(n)
+    return list(dict.fromkeys(names))
+
+
+def _split(spec) -> list[str]:
+    names = [s.strip() for s in spec.split(",")] if isinstance(spec, str) else list(spec)
+    names = [n for n in names if n]
+    if not names:
+        raise ValueError("expected at least one name")
+    return names
+
+
+# ----------------------------------------------------------------------------- results.csv
+
+def read_rows(path: Path) -> list[dict]:
+    """The rows of ``results.csv`` (an incomplete last line, from an interrupted write, is
+    dropped from the file)."""
+    if not path.exists():
+        return []
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1
+        with open(path, "r+b") as f:
+            f.truncate(cut)
+        data = data[:cut]
+    rows = list(csv.DictReader(io.StringIO(data.decode())))
+    if rows and set(rows[0]) != set(COLUMNS):
+        raise ValueError(f"{path} has columns {list(rows[0])}, expected {list(COLUMNS)}; "
+                         f"use another --out directory")
+    return [r for r in rows if None not in r.values()]
+
+
+def append_row(path: Path, row: Mapping) -> None:
+    """Append one row with a single write, flushed and fsynced (header first if new)."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
+    if not path.exists() or path.stat().st_size == 0:
+        writer.writeheader()
+    writer.writerow({k: _fmt(row.get(k, "")) for k in COLUMNS})
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(buf.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else str(v)
+    return v
+
+
+# ----------------------------------------------------------------------------- running
+
+def _error_text(err: BaseException) -> str:
+    text = f"{type(err).__name__}: {err}".strip().splitlines()[0]
+    return text[:300]
+
+
+def _row(task, method, seed, budget, **values) -> dict:
+    row = dict.fromkeys(COLUMNS, "")
+    row.update(task=task, method=method, seed=seed, budget=budget, **values)
+    return row
+
+
+def evaluate(out, runnable) -> dict:
+    """Row values from an :class:`EpisodeOutput` (NumPy), with the failure checks."""
+    score = float(out.score)
+    finite = np.asarray(out.finite)
+    stats = out.stats
+    values = dict(score=score, final_distance=float(np.asarray(out.distance)[-1]),
+                  env_steps=runnable.env_steps, backprop_steps=runnable.backprop_steps)
+    status, error = "ok", ""
+    bad_grads = int(np.sum(stats.nonfinite_grads))
+    if runnable.uses_gradients:
+        steps = int(np.sum(stats.grad_steps))
+        gmax = np.asarray(stats.grad_norm_max, np.float64)
+        values.update(grad_norm=float(np.max(gmax)) if gmax.size else math.nan,
+                      grad_norm_mean=float(np.sum(stats.grad_norm_sum))
+                      / max(steps - bad_grads, 1),
+                      nonfinite_grads=bad_grads)
+        if bad_grads and not runnable.nan_grads_zeroed:
+            status = "failed"
+            error = (f"non-finite gradient in {bad_grads} of {steps} gradient steps "
+                     f"(first at env step {int(np.argmax(np.asarray(stats.nonfinite_grads)))})")
+    if not finite.all():
+        status = "failed"
+        error = "; ".join(e for e in (f"non-finite action, state or reward from env step "
+                                      f"{int(np.argmin(finite))}", error) if e)
+    elif not math.isfinite(score):
+        status, error = "failed", f"non-finite score {score}"
+    values.update(status=status, error=error)
+    return values
+
+
+def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
+             quick: bool = False, task_overrides: Mapping | None = None,
+             method_overrides: Mapping | None = None, cache_goal: bool = True,
+             progress: bool = True) -> list[dict]:
+    """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
+
+    task_overrides: ``{task: {TaskSpec field: value}}`` passed to ``dax_tasks.make`` (e.g. a
+    coarser scene for tests). method_overrides: ``{method: {config field: value}}`` on top
+    of the budget. cache_goal: passed to ``dax_tasks.make``."""
+    task_names = resolve_tasks(tasks)
+    method_names = resolve_methods(methods)
+    if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
+        raise ValueError(f"seeds must be a positive int, got {seeds!r}")
+    budget = "quick" if quick else "full"
+    task_overrides = dict(task_overrides or {})
+    method_overrides = dict(method_overrides or {})
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "results.csv"
+    done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in read_rows(csv_path)}
+    todo = [(t, m, s) for t in task_names for m in method_names for s in range(seeds)
+            if (t, m, s, budget) not in done]
+
+    bar = tqdm(total=len(todo), desc="dax-bench", unit="run", disable=not progress,
+               file=sys.stderr)
+    for t in task_names:
+        t_todo = [(m, s) for tt, m, s in todo if tt == t]
+        if not t_todo:
+            continue
+        try:
+            task = dax_tasks.make(t, seed=0, cache_goal=cache_goal, **task_overrides.get(t, {}))
+        except Exception as err:  # noqa: BLE001 - recorded, the grid continues
+            for m, s in t_todo:
+                append_row(csv_path, _row(t, m, s, budget, status="failed",
+                                          error="building the task: " + _error_text(err)))
+                bar.update()
+            continue
+        for m in method_names:
+            m_seeds = [s for mm, s in t_todo if mm == m]
+            if not m_seeds:
+                continue
+            bar.set_postfix_str(f"{t} / {m}")
+            _run_method(task, t, m, m_seeds, budget, method_overrides.get(m, {}), csv_path,
+                        bar)
+        jax.clear_caches()
+    bar.close()
+    rows = read_rows(csv_path)
+    write_reports(rows, out, budget)
+    return rows
+
+
+def _run_method(task, t, m, seeds, budget, overrides, csv_path, bar):
+    method = registry.get(m)
+    try:
+        config = method.config(budget, t, **overrides)
+        runnable = method.build(task, config)
+        key0 = jax.random.PRNGKey(0)
+        t0 = time.perf_counter()
+        compiled = jax.jit(runnable.episode).lower(key0).compile()
+        compile_s = time.perf_counter() - t0
+    except Exception as err:  # noqa: BLE001
+        status = "skipped" if "has no scripted expert" in str(err) else "failed"
+        for s in seeds:
+            append_row(csv_path, _row(t, m, s, budget, status=status, error=_error_text(err)))
+            bar.update()
+        return
+    for s in seeds:
+        try:
+            t0 = time.perf_counter()
+            out = jax.device_get(jax.block_until_ready(compiled(jax.random.PRNGKey(s))))
+            wall = time.perf_counter() - t0
+            row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s,
+                       **evaluate(out, runnable))
+        except Exception as err:  # noqa: BLE001
+            row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
+                       error=_error_text(err))
+        append_row(csv_path, row)
+        bar.update()
+
+
+def write_reports(rows, out: Path, budget: str) -> None:
+    """Rewrite ``results.md`` and the charts from the rows of ``budget``."""
+    rows = [r for r in rows if r["budget"] == budget]
+    text = report.markdown(rows, dax_tasks.TASKS, registry.names(),
+                           title=f"DaX benchmark ({budget} budget)")
+    report.write_text_atomic(out / "results.md", text)
+    report.charts(rows, out, registry.names())
+
+
+# ----------------------------------------------------------------------------- CLI
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dax-bench", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run tasks x methods x seeds")
+    run.add_argument("--tasks", default="all", help="comma-separated task names, or all")
+    run.add_argument("--methods", default="all", help="comma-separated method names, or all")
+    run.add_argument("--seeds", type=int, default=1, help="number of seeds K (seeds 0..K-1)")
+    run.add_argument("--quick", action="store_true", help="small planner budgets (smoke run)")
+    run.add_argument("--out", default="results", help="output directory")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sub.add_parser("list", help="list the tasks and methods")
+    return p
+
+
+def _default_compilation_cache() -> None:
+    """Use the persistent XLA cache ``~/.cache/dax/jax`` (as the test sessions do) unless
+    one is configured, so a second run does not recompile."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
+        return
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "dax" / "jax"
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    if args.command == "list":
+        declared, available = _task_names()
+        print("tasks:", ", ".join(available), f"(declared: {', '.join(declared)})")
+        print("methods:", ", ".join(registry.names()))
+        return 0
+    _default_compilation_cache()
+    try:
+        rows = run_grid(args.tasks, args.methods, args.seeds, args.out, quick=args.quick,
+                        progress=not args.no_progress)
+    except ValueError as err:
+        print(f"dax-bench: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"dax-bench: interrupted; finished runs are in {Path(args.out) / 'results.csv'}"
+              f" (run the same command again to resume)", file=sys.stderr)
+        return 130
+    failed = sum(r["status"] == "failed" for r in rows)
+    print(f"{len(rows)} rows in {Path(args.out) / 'results.csv'} ({failed} failed); "
+          f"table: {Path(args.out) / 'results.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,142 @@
+"""The method registry: name -> :class:`Method` (config class, builder, budgets).
+
+A method builds, for one task and config, a :class:`Runnable`: a pure ``episode(key) ->
+EpisodeOutput`` (the runner jits it once per task and method and calls it per seed) and the
+number of simulated / differentiated environment steps one call costs. The planners and the
+reference rows build it from a :class:`dax_algos.common.Planner`; a learning method (PPO,
+APG, SHAC, Transporter, ILD) can register a builder whose ``episode(key)`` trains and then
+evaluates, under the same interface (:func:`register`).
+
+Budgets: ``"quick"`` (the benchmark's smoke run on 2 CPU cores) and ``"full"`` (the budgets to
+report); the quick budget is smaller still on the MPM tasks (``HEAVY_TASKS``), whose
+environment step costs ~30x a cloth step. See README.md for the numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
+from typing import Any
+
+from . import cem_mpc, common, diff_cem_mpc, diff_mpc, reference
+from .cem_mpc import CEMConfig
+from .diff_cem_mpc import DiffCEMConfig
+from .diff_mpc import DiffMPCConfig
+
+BUDGETS = ("quick", "full")
+#: Tasks simulated with MLS-MPM (an environment step costs ~0.5 s on 2 CPU cores, against
+#: ~15 ms for a cloth pick-and-place); the quick budget is smaller on them.
+HEAVY_TASKS = frozenset({"push_rope", "pour_water", "pour_soup", "whip_rope"})
+
+
+@dataclasses.dataclass(frozen=True)
+class Runnable:
+    """episode(key) -> EpisodeOutput (pure); env_steps / backprop_steps per call;
+    nan_grads_zeroed: non-finite gradients are zeroed by design (not a failure)."""
+
+    episode: Callable
+    env_steps: int
+    backprop_steps: int
+    uses_gradients: bool
+    nan_grads_zeroed: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """name: command-line name; kind: ``reference`` / ``planning`` / ``rl`` / ``il``;
+    config_cls: its frozen config dataclass; build(task, config) -> Runnable;
+    budgets: {"quick" | "quick_heavy" | "full": config keyword arguments};
+    uses_gradients: whether it differentiates through the simulator."""
+
+    name: str
+    kind: str
+    config_cls: type
+    build: Callable[[Any, Any], Runnable]
+    budgets: Mapping[str, Mapping[str, Any]]
+    uses_gradients: bool = False
+
+    def config(self, budget: str = "full", task: str | None = None, **overrides):
+        """The config for ``budget`` on ``task``, with ``overrides`` (nested configs take a
+        dict of their own fields)."""
+        if budget not in BUDGETS:
+            raise ValueError(f"unknown budget {budget!r}; valid: {', '.join(BUDGETS)}")
+        key = "quick_heavy" if budget == "quick" and task in HEAVY_TASKS else budget
+        kwargs = dict(self.budgets.get(key, self.budgets.get(budget, {})))
+        kwargs.update(overrides)
+        return _build_config(self.config_cls, kwargs)
+
+
+def _build_config(cls, kwargs):
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(kwargs) - set(fields))
+    if unknown:
+        raise ValueError(f"unknown {cls.__name__} option(s) {unknown}; valid: {sorted(fields)}")
+    out = {}
+    for name, value in kwargs.items():
+        default = fields[name].default
+        if isinstance(value, Mapping) and dataclasses.is_dataclass(default):
+            value = dataclasses.replace(default, **value)
+        out[name] = value
+    return cls(**out)
+
+
+def planner_method(name, kind, config_cls, make_planner, budgets, uses_gradients=False):
+    """A :class:`Method` from a planner builder ``make_planner(task, config) -> Planner``."""
+
+    def build(task, config):
+        planner = make_planner(task, config)
+        sims, back = common.episode_env_steps(task, planner)
+        return Runnable(common.make_episode(task, planner), sims, back, uses_gradients,
+                        planner.nan_grads_zeroed)
+
+    return Method(name, kind, config_cls, build, MappingProxyType(dict(budgets)),
+                  uses_gradients)
+
+
+_CEM_QUICK = dict(population=16, elites=4, iterations=2, horizon=1)
+_CEM_QUICK_HEAVY = dict(population=6, elites=2, iterations=1, horizon=1)
+_CEM_FULL = dict(population=64, elites=8, iterations=5, horizon=3)
+
+_METHODS: dict[str, Method] = {}
+
+
+def register(method: Method, overwrite: bool = False) -> None:
+    """Add ``method`` to the registry (``overwrite`` to replace one of the same name)."""
+    if method.name in _METHODS and not overwrite:
+        raise ValueError(f"method {method.name!r} is already registered")
+    _METHODS[method.name] = method
+
+
+def unregister(name: str) -> None:
+    _METHODS.pop(name, None)
+
+
+def names() -> tuple:
+    """The registered method names."""
+    return tuple(_METHODS)
+
+
+def get(name: str) -> Method:
+    """The :class:`Method` called ``name`` (ValueError listing the valid names if none)."""
+    if name not in _METHODS:
+        raise ValueError(f"unknown method {name!r}; valid names: {', '.join(_METHODS)}")
+    return _METHODS[name]
+
+
+for _m in (
+    planner_method("random", "reference", reference.RandomConfig, reference.make_random, {}),
+    planner_method("expert", "reference", reference.ExpertConfig, reference.make_expert, {}),
+    planner_method("cem_mpc", "planning", CEMConfig, cem_mpc.make_planner, {
+        "quick": _CEM_QUICK, "quick_heavy": _CEM_QUICK_HEAVY, "full": _CEM_FULL}),
+    planner_method("diff_mpc", "planning", DiffMPCConfig, diff_mpc.make_planner, {
+        "quick": dict(steps=5, horizon=1, learning_rate=0.1),
+        "quick_heavy": dict(steps=1, horizon=1, learning_rate=0.1),
+        "full": dict(steps=50, horizon=3, learning_rate=0.05)}, uses_gradients=True),
+    planner_method("diff_cem_mpc", "planning", DiffCEMConfig, diff_cem_mpc.make_planner, {
+        "quick": dict(cem=_CEM_QUICK, diff=dict(steps=3, learning_rate=0.05)),
+        "quick_heavy": dict(cem=_CEM_QUICK_HEAVY, diff=dict(steps=1, learning_rate=0.05)),
+        "full": dict(cem=_CEM_FULL, diff=dict(steps=10, learning_rate=0.02))},
+        uses_gradients=True),
+):
+    register(_m)

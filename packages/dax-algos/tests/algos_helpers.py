@@ -1,0 +1,64 @@
+"""Test helpers of dax-algos: a smooth analytic toy task (no physics) and a cheap cloth task.
+(A uniquely named module, so it never clashes with another package's conftest.)"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+
+class ToyState(NamedTuple):
+    p: jnp.ndarray
+    t: jnp.ndarray
+    finite: jnp.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ToySpec:
+    name: str = "toy"
+    action_low: tuple = (-0.5, -0.5)
+    action_high: tuple = (0.5, 0.5)
+    action_kind: str = "velocity"
+
+    @property
+    def action_dim(self):
+        return len(self.action_low)
+
+
+class ToyTask:
+    """A point moved by its action on a smooth Gaussian reward landscape:
+    ``p' = p + a``, ``r = exp(-|p' - g|^2 / width)`` with ``g = (0.3, -0.2)``. Same
+    interface as :class:`dax_tasks.Task` (``reset``, ``step``, ``spec``, ``horizon``)."""
+
+    def __init__(self, horizon=2, width=0.05, scale=1.0):
+        self.spec = ToySpec()
+        self.horizon = horizon
+        self.width = width
+        self.scale = scale
+        self.goal = jnp.asarray([0.3, -0.2])
+        self.has_expert = False
+
+    def reset(self, key):
+        p = jax.random.uniform(key, (2,), minval=-0.2, maxval=0.2)
+        return p, ToyState(p, jnp.zeros((), jnp.int32), jnp.asarray(True))
+
+    def step(self, state, action):
+        p = state.p + action
+        d2 = jnp.sum((p - self.goal) ** 2)
+        r = self.scale * jnp.exp(-d2 / self.width)
+        finite = state.finite & jnp.all(jnp.isfinite(p))
+        info = {"r_gt": r, "distance": jnp.sqrt(d2), "finite": finite}
+        return p, ToyState(p, state.t + 1, finite), r, state.t + 1 >= self.horizon, info
+
+
+def cheap_cloth_overrides(name="fold_cloth1", **extra):
+    """A coarse cloth task: 6 x 6 vertices, 400 substeps per action (200 carrying; a
+    60-substep carry flings the cloth off the table, so the goal itself is off it)."""
+    import dax_tasks
+
+    spec = dax_tasks.get_spec(name)
+    return dict(scene=dataclasses.replace(spec.scene, n=6, settle_substeps=200),
+                substeps=400, **extra)

@@ -1,0 +1,144 @@
+"""The benchmark runner: files, failure recording, resuming, name errors, the CLI."""
+
+import csv
+
+import jax.numpy as jnp
+import pytest
+from algos_helpers import cheap_cloth_overrides
+
+from dax_algos import bench, common, reference, registry
+
+TASK = "fold_cloth1"
+METHODS = "random,expert,nan_actions,cem_mpc,diff_mpc"
+
+
+def _make_nan(task, config):
+    """A broken method: NaN actions (the task's finite flag turns false)."""
+    rnd = reference.make_random(task, config)
+
+    def plan(pstate, env_state, key):
+        action, pstate, stats = rnd.plan(pstate, env_state, key)
+        return action * jnp.nan, pstate, stats
+
+    return common.Planner(init=rnd.init, plan=plan)
+
+
+def _run(out, seeds=2, **kw):
+    return bench.run_grid(
+        TASK, METHODS, seeds=seeds, out=out, quick=True,
+        task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
+        method_overrides={"cem_mpc": dict(population=6, elites=2, iterations=1),
+                          "diff_mpc": dict(steps=2)},
+        cache_goal=False, progress=False, **kw)
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    registry.register(registry.planner_method(
+        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}))
+    out = tmp_path_factory.mktemp("bench")
+    try:
+        yield out, _run(out)
+    finally:
+        registry.unregister("nan_actions")
+
+
+def test_runner_writes_csv_markdown_and_charts(grid):
+    out, rows = grid
+    with open(out / "results.csv") as f:
+        header = next(csv.reader(f))
+    assert tuple(header) == bench.COLUMNS
+    assert len(rows) == 10, rows
+    md = (out / "results.md").read_text()
+    assert f"| method | {TASK} |" in md, md
+    for m in ("random", "expert", "cem_mpc", "diff_mpc"):
+        assert f"| {m} | " in md and "±" in md, md
+    assert "final" in md  # the score definition is stated
+    assert (out / f"chart_{TASK}.png").stat().st_size > 1000
+
+
+def test_failed_run_is_recorded_and_the_grid_continues(grid):
+    _, rows = grid
+    nan_rows = [r for r in rows if r["method"] == "nan_actions"]
+    assert [r["status"] for r in nan_rows] == ["failed", "failed"], nan_rows
+    assert all("non-finite" in r["error"] for r in nan_rows), nan_rows
+    later = [r for r in rows if r["method"] in ("cem_mpc", "diff_mpc")]
+    assert len(later) == 4 and all(r["status"] == "ok" for r in later), later
+
+
+def test_expert_reference_row_beats_random(grid):
+    _, rows = grid
+    score = {m: [float(r["score"]) for r in rows if r["method"] == m and r["status"] == "ok"]
+             for m in ("random", "expert")}
+    assert len(score["expert"]) == 2 and min(score["expert"]) > max(score["random"]), score
+
+
+def test_cem_rows_count_planning_rollouts_and_diff_rows_report_gradient_norms(grid):
+    _, rows = grid
+    cem = [r for r in rows if r["method"] == "cem_mpc"]
+    assert all(int(r["env_steps"]) == 2 * (6 * 1 * 1 + 1) for r in cem), cem
+    diff = [r for r in rows if r["method"] == "diff_mpc"]
+    for r in diff:
+        g = float(r["grad_norm"])
+        assert 0.0 < g < float("inf"), r
+        assert int(r["nonfinite_grads"]) == 0 and int(r["backprop_steps"]) == 2 * 2, r
+    for r in rows:
+        assert 0.0 <= float(r["score"]) <= 1.0 or r["status"] == "failed", r
+
+
+def test_second_invocation_skips_finished_rows(grid, monkeypatch):
+    out, rows = grid
+    before = (out / "results.csv").read_text()
+    calls = []
+    original = bench._run_method
+    monkeypatch.setattr(bench, "_run_method",
+                        lambda *a, **k: calls.append(a[2:4]) or original(*a, **k))
+    registry.register(registry.planner_method(
+        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}), overwrite=True)
+    again = _run(out)
+    assert calls == [] and len(again) == len(rows)
+    assert (out / "results.csv").read_text() == before
+    # one more seed: only seed 2 of each method runs, appended after the old rows
+    more = _run(out, seeds=3)
+    assert sorted(calls) == sorted((m, [2]) for m in METHODS.split(","))
+    assert len(more) == 15 and (out / "results.csv").read_text().startswith(before)
+
+
+def test_incomplete_last_line_is_dropped(tmp_path):
+    path = tmp_path / "results.csv"
+    bench.append_row(path, {"task": TASK, "method": "random", "seed": 0, "budget": "quick",
+                            "status": "ok", "score": 0.5})
+    with open(path, "a") as f:
+        f.write("fold_cloth1,random,1,qu")  # an interrupted write
+    rows = bench.read_rows(path)
+    assert [r["seed"] for r in rows] == ["0"]
+    assert path.read_text().endswith("\n")
+
+
+def test_unknown_names_raise_value_error_listing_valid_ones():
+    with pytest.raises(ValueError, match="unknown task 'nope'.*push_rope"):
+        bench.resolve_tasks("push_rope,nope")
+    with pytest.raises(ValueError, match="unknown method 'ppo'.*cem_mpc"):
+        bench.resolve_methods("cem_mpc,ppo")
+    with pytest.raises(ValueError, match="seeds"):
+        bench.run_grid(TASK, "random", seeds=0)
+
+
+def test_cli_unknown_name_is_a_one_line_error_with_exit_2(tmp_path, capsys):
+    assert bench.main(["run", "--tasks", "nope", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("dax-bench: error: unknown task") and "\n" not in err, err
+    assert bench.main(["run", "--methods", "all,ppo", "--out", str(tmp_path)]) == 2
+    assert not (tmp_path / "results.csv").exists()
+
+
+def test_budgets_quick_smaller_than_full_and_heavier_tasks_smaller_still():
+    cem = registry.get("cem_mpc")
+    full, quick = cem.config("full", TASK), cem.config("quick", TASK)
+    heavy = cem.config("quick", "push_rope")
+    cost = [c.population * c.iterations * c.horizon for c in (full, quick, heavy)]
+    assert cost[0] > cost[1] > cost[2], cost
+    nested = registry.get("diff_cem_mpc").config("quick", TASK, diff={"steps": 7})
+    assert nested.diff.steps == 7 and nested.cem.population == quick.population
+    with pytest.raises(ValueError, match="unknown CEMConfig option"):
+        cem.config("quick", TASK, populaton=3)
