@@ -494,7 +494,16 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
     # grid update
     gm = grid[:, 3]
     has_mass = gm > 0.0
-    gv = jnp.where(has_mass[:, None], grid[:, :3] / jnp.where(has_mass, gm, 1.0)[:, None], 0.0)
+    gv_exact = grid[:, :3] / jnp.where(has_mass, gm, 1.0)[:, None]
+    # A node touched only by the far tail of the B-spline weights can hold a vanishing mass
+    # (1e-30 kg). Dividing by it is fine forward, but its reverse-mode derivative (-p / m^2)
+    # overflows float32 to inf and then NaN (seen on Push-Rope: NaN action gradients at
+    # 160+ substeps). Below a millionth of the lightest particle's mass the velocity keeps
+    # its exact forward value but passes no gradient (such a node moves nothing).
+    heavy = gm > 1e-6 * jax.lax.stop_gradient(jnp.min(m))
+    gv_heavy = grid[:, :3] / jnp.where(heavy, gm, 1.0)[:, None]
+    gv = jnp.where(heavy[:, None], gv_heavy,
+                   jnp.where(has_mass[:, None], jax.lax.stop_gradient(gv_exact), 0.0))
     gv = gv + dt * jnp.asarray(cfg.gravity, dtype)
     node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
     if cfg.walls != "none":
