@@ -1,7 +1,8 @@
 """Test, lint and demo sessions for the DaX monorepo.
 
 `nox` runs the default sessions (lint, each package alone, the combinations, the
-cross-package tests); `nox -s demo` runs the physics demo; `nox -l` lists them all.
+cross-package tests); `nox -s demo` runs the main job, the benchmark runner on a small
+default; `nox -s physics-demo` the physics demo; `nox -l` lists them all.
 Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
 
 Each package session installs only that package and the siblings it declares, so a
@@ -157,8 +158,28 @@ def lint(session: nox.Session) -> None:
     session.run("ruff", "check", ".", *session.posargs)
 
 
+#: The main job's small default: three cheap cloth tasks, every method, two seeds, the
+#: quick planner budgets (a few minutes on 2 CPU cores). Arguments after `--` replace it,
+#: e.g. `nox -s demo -- --tasks all --methods all --seeds 5 --out results`.
+DEMO_ARGS = [
+    "--tasks", "fold_cloth1,fold_tshirt,unfold_cloth1",
+    "--methods", "all",
+    "--seeds", "2",
+    "--quick",
+    "--out", "bench_out",
+]
+
+
 @nox.session
 def demo(session: nox.Session) -> None:
+    """The main job: the benchmark runner (dax-bench) on a small default; writes
+    bench_out/results.csv, results.md and a chart per task."""
+    _install_local(session, LAYERS)
+    session.run("dax-bench", "run", *(session.posargs or DEMO_ARGS), env=PYTEST_ENV)
+
+
+@nox.session(name="physics-demo")
+def physics_demo(session: nox.Session) -> None:
     """The physics demo: prints its figures as JSON and writes a picture to demo_out/."""
     _install_local(session, ["dax-physics"], extras={"dax-physics": "plot"})
     session.run(
