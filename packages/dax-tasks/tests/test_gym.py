@@ -92,3 +92,21 @@ def test_vector_env_steps_the_batch_and_autoresets():
     assert not truncated.any() and np.all(reward == 0)
     with pytest.raises(ValueError, match=r"shape \(3, 6\)"):
         venv.step(np.zeros((2, 6)))
+
+
+def test_make_kwargs_pass_through_to_dax_tasks_make():
+    env = gym.make("dax/FoldCloth1-v0", seed=3, horizon=2, aux_reward=True)
+    task = env.unwrapped.task
+    assert task.seed == 3 and task.spec.horizon == 2 and task.spec.aux_reward
+    with pytest.raises(ValueError, match="unknown TaskSpec override"):
+        gym.make("dax/FoldCloth1-v0", horizon_steps=2)
+    first = [gym.make("dax/FoldCloth1-v0", seed=s).reset()[0] for s in (3, 3, 4)]
+    np.testing.assert_array_equal(first[0], first[1])  # make's seed drives the first reset
+    assert not np.array_equal(first[0], first[2])
+
+
+def test_ids_of_unimplemented_tasks_raise_not_implemented():
+    missing = [n for n in dax_tasks.TASKS if n not in dax_tasks.available()]
+    for name in missing:
+        with pytest.raises(NotImplementedError, match="not implemented"):
+            gym.make(GYM_IDS[name])

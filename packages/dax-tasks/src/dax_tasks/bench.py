@@ -10,7 +10,8 @@ Times are medians over ``--reps`` calls after the compiled function's first call
 times come from lowering and compiling ahead of time (set ``JAX_COMPILATION_CACHE_DIR``
 unset to see cold compiles). ``per_env_step_s`` = step time / batch size. The actions
 timed are the task's scripted expert's (so the gripper touches the object), else the
-middle of the action box.
+middle of the action box. ``grad_finite`` says whether that gradient was finite
+(``grad_norm`` is null when it was not, so the output stays strict JSON).
 """
 
 from __future__ import annotations
@@ -75,11 +76,12 @@ def bench_batch(name: str, batch: int | None, reps: int, overrides: dict) -> dic
     grad_c, c_grad = _timed_compile(grad, action, state)
     t_grad, _ = _median_time(lambda: grad_c(action, state), reps)
     g = np.asarray(grad_c(action, state)[1])
+    finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
     b = 1 if batch is None else batch
     return {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
             "step_grad_s": t_grad, "compile_reset_s": c_reset, "compile_step_s": c_step,
-            "compile_grad_s": c_grad, "grad_finite": bool(np.all(np.isfinite(g))),
-            "grad_norm": float(np.linalg.norm(g))}
+            "compile_grad_s": c_grad, "grad_finite": finite,
+            "grad_norm": float(np.linalg.norm(g)) if finite else None}
 
 
 def bench_task(name: str, batches, reps: int, overrides: dict | None = None) -> dict:

@@ -13,7 +13,9 @@ Semantics. Observations are float32 NumPy arrays (the task's flattened particle
 observation); ``reward`` is the task's reward (``r_gt``, plus ``r_aux`` when the spec asks);
 ``info`` carries ``r_gt``, ``distance``, ``finite``, ``t`` and ``clipped``. Episodes end by
 time only: ``truncated`` is true at the task's horizon and ``terminated`` is always false.
-``reset(seed=s)`` is deterministic: the same seed gives the same start.
+``reset(seed=s)`` is deterministic: the same seed gives the same start; a first ``reset()``
+without a seed uses the ``seed`` given to ``gymnasium.make`` (default 0), so it is
+deterministic too (later seedless resets continue the environment's random stream).
 
 Actions. A wrong shape or a NaN/inf raises ``ValueError`` naming the problem. Actions
 outside the bounds are *clipped* to them (``info["clipped"]`` says when), as the task itself
@@ -100,6 +102,8 @@ class DaxEnv(gym.Env):
         return self._state
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None and self._np_random is None:
+            seed = self.task.seed  # the first reset follows gymnasium.make(..., seed=s)
         super().reset(seed=seed)
         key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
         obs, self._state = self.task.reset(key)
@@ -148,6 +152,8 @@ class DaxVectorEnv(gym.vector.VectorEnv):
         self._needs_reset = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None and self._np_random is None:
+            seed = self.task.seed  # the first reset follows gymnasium.make_vec(..., seed=s)
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
