@@ -177,3 +177,22 @@ def test_expert_beats_random_on_fold_cloth1(env):
         f"expected the expert's r_gt clearly above random's, got {expert['mean']:.3f} ± "
         f"{expert['sem']:.3f} vs {rand['mean']:.3f} ± {rand['sem']:.3f}")
     assert expert["mean"] > 0.8, f"expected expert final r_gt > 0.8, got {expert['mean']:.3f}"
+
+
+SMALL = ["--override", "scene.n=6", "--override", "scene.settle_substeps=100",
+         "--override", "substeps=160"]
+
+
+def test_overrides_make_a_small_scene_and_are_part_of_the_arguments(env, tmp_path):
+    path = tmp_path / "small.h5"
+    args = ["generate", "--task", TASK, "--episodes", 1, "--out", path, "--no-progress"]
+    proc = run(env, *args, *SMALL)
+    assert proc.returncode == 0, proc.stderr
+    with dax_data.open_file(path) as f:
+        assert f.meta["spec"]["scene"]["n"] == 6 and f.meta["spec"]["substeps"] == 160
+        assert f.episode(0).points.shape[1:] == (36, 3)
+    proc = run(env, *args, *SMALL[:4])  # substeps differs from the file's
+    assert_one_line_error(proc, str(path), "overrides=")
+    assert_one_line_error(run(env, *args, "--override", "scene.nope=1"),
+                          "unknown scene override")
+    assert_one_line_error(run(env, *args, "--override", "substeps"), "KEY=VALUE")

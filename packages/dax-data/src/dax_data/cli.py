@@ -52,6 +52,9 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--policy", choices=("expert", "random"), default="expert")
     g.add_argument("--point-stride", type=_positive_int, default=1, metavar="K",
                    help="store the object points every K steps (and the last; default 1)")
+    g.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a TaskSpec field (substeps=160) or a scene field "
+                        "(scene.n=6); VALUE is JSON; repeatable (for small test runs)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -76,6 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--task", required=True)
     s.add_argument("--seeds", type=_positive_int, default=20)
     s.add_argument("--seed", type=_nonneg_int, default=0, help="first seed (default 0)")
+    s.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                   help="as for generate")
     s.add_argument("--json", action="store_true")
     return p
 
@@ -85,10 +90,11 @@ def _fmt_score(d: dict) -> str:
 
 
 def _generate(a) -> None:
-    from .record import generate
+    from .record import generate, parse_overrides
 
     out = generate(a.task, a.episodes, a.seed, a.out, policy=a.policy,
-                   point_stride=a.point_stride, progress=not a.no_progress)
+                   point_stride=a.point_stride, progress=not a.no_progress,
+                   overrides=parse_overrides(a.task, a.override))
     if a.json:
         print(json.dumps(out, indent=1))
         return
@@ -143,9 +149,9 @@ def _export(a) -> None:
 
 
 def _score(a) -> None:
-    from .record import score
+    from .record import parse_overrides, score
 
-    out = score(a.task, a.seeds, a.seed)
+    out = score(a.task, a.seeds, a.seed, overrides=parse_overrides(a.task, a.override))
     if a.json:
         print(json.dumps(out, indent=1))
         return

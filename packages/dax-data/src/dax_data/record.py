@@ -33,6 +33,55 @@ def make_task(name: str, batch_size: int | None = None, overrides: dict | None =
         raise ValueError(str(err)) from None
 
 
+def _from_json(value):
+    """JSON lists become tuples (spec and scene fields are hashable jit static args)."""
+    if isinstance(value, list):
+        return tuple(_from_json(v) for v in value)
+    return value
+
+
+def parse_overrides(task_name: str, items) -> dict:
+    """``dax_tasks.make`` overrides from ``KEY=VALUE`` strings (the CLI's ``--override``).
+
+    ``KEY`` is a :class:`dax_tasks.TaskSpec` field (``substeps=160``, ``horizon=2``) or
+    ``scene.FIELD`` for a field of the task's scene (``scene.n=6``); ``VALUE`` is read as
+    JSON (``6``, ``0.5``, ``true``, ``[1, 2]``) and kept as a string when it is not JSON.
+    Scene fields are applied with ``dataclasses.replace`` to the task's default scene.
+    """
+    import dataclasses
+
+    import dax_tasks
+
+    top, scene = {}, {}
+    for item in items or ():
+        key, sep, text = str(item).partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(f"override {item!r} is not of the form KEY=VALUE")
+        try:
+            value = _from_json(json.loads(text))
+        except json.JSONDecodeError:
+            value = text
+        if key.startswith("scene."):
+            scene[key[len("scene."):]] = value
+        elif key == "scene":
+            raise ValueError("override the scene field by field: scene.FIELD=VALUE")
+        else:
+            top[key] = value
+    if scene:
+        try:
+            default = dax_tasks.get_spec(task_name).scene
+        except NotImplementedError as err:
+            raise ValueError(str(err)) from None
+        fields = {f.name for f in dataclasses.fields(default)}
+        unknown = sorted(set(scene) - fields)
+        if unknown:
+            raise ValueError(f"unknown scene override(s) {unknown} for task {task_name!r}; "
+                             f"valid: {sorted(fields)}")
+        top["scene"] = dataclasses.replace(default, **scene)
+    return top
+
+
 def _check_policy(task, policy: str) -> None:
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
