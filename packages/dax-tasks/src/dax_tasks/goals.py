@@ -108,11 +108,20 @@ def save_goal(path: str | os.PathLike, points, prov: dict) -> Path:
     pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
         raise ValueError(f"a goal must be a finite (N, 3) array, got shape {pts.shape}")
+    return atomic_write(path, lambda f: np.savez(f, points=pts,
+                                                 provenance=np.asarray(json.dumps(prov))))
+
+
+def atomic_write(path: str | os.PathLike, write) -> Path:
+    """Call ``write(f)`` on a binary file that becomes ``path`` only once complete: a
+    temporary file in the same directory, flushed and fsynced, then renamed into place
+    (removed if ``write`` fails). Creates the directory if needed."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, points=pts, provenance=np.asarray(json.dumps(prov)))
+            write(f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

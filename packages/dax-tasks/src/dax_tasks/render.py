@@ -19,12 +19,12 @@ the right and y up.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+
+from .goals import atomic_write
 
 #: Smallest height [m] an occupied pixel of the height map gets.
 MIN_HEIGHT = 1e-4
@@ -123,19 +123,9 @@ def save_video(frames, path, fps: float = 10.0) -> Path:
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}")
     images = [Image.fromarray(f) for f in frames]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            images[0].save(f, format="GIF", save_all=True, append_images=images[1:],
-                           duration=int(round(1000 / fps)), loop=0)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_write(path, lambda f: images[0].save(
+        f, format="GIF", save_all=True, append_images=images[1:],
+        duration=int(round(1000 / fps)), loop=0))
 
 
 def record_episode(task, policy=None, key=None, res: int = 128):
