@@ -1,0 +1,366 @@
+"""Whip-Rope: move the held end of a rope so that it lands in a target configuration.
+
+Scene (SI units, z up). An elastic MPM rope (fixed-corotated, E = 4e4 Pa, nu = 0.3,
+rho = 1100 kg/m^3) of length 0.25 m and radius 1 cm lies on a table (a ``plane``
+collider at ``table_z`` = 4.5 cm, Coulomb friction 0.4). The gripper holds the first
+``grip_length`` = 3 cm of the rope (31 of the 288 particles, the same indices for every
+seed): after every substep those particles are set rigidly on the gripper's path, with
+its velocity and a zero APIC matrix (the grasp of :func:`dax_physics.grasp`, imposed in
+the step body so that no gripper collider is evaluated on the grid). The gripper's
+position is the centroid of the held particles (the end-effector).
+
+Resolution (what the scene needs, no more). Cells ``dx`` = 1.25 cm; 8 particles per cell
+(288 particles, about 4 across the rope); the allocated grid is a 30 x 30 x 12 cell window
+(0.375 x 0.375 x 0.15 m) that follows the rope inside an 80 x 80 x 24 cell domain
+(1 x 1 x 0.3 m). Substep ``dt`` = 0.625 ms (CFL bound 0.66 ms for the P-wave speed
+7.0 m/s plus ``max_speed`` 2.5 m/s); 16 substeps per env step (10 ms), horizon 70 steps
+(0.7 s). E is the softest that keeps the rope from stretching much under table friction
+(about 3 %) and at the gripper speeds; a softer rope allows a longer ``dt`` but stretches
+and tears at the grip.
+
+Measured (2-core CPU, batch 1, ``python -m dax_tasks.bench --tasks whip_rope --batch
+1``): about 0.021 s per env step forward, 0.07-0.10 s with the action gradient (DaXBench
+Whip-Rope: 0.125 s per step). About half of a substep is the table's plane collider evaluated
+on every window node.
+
+Action (``velocity``): the gripper's velocity ``(vx, vy, vz)`` [m/s], held for the env step.
+Bounds +-0.75 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 0.75 m/s:
+a sudden pull along the rope at 1 m/s or more tears the held end off this rope (numerical
+fracture at this resolution; measured: the gap between the held and the free particles
+grows past 5 cm). The gripper's end point is kept inside the workspace (:func:`workspace`; z at
+least the held particles' rest height, so the held end never enters the table);
+a clipped component has zero gradient.
+
+Initial state. The rope's particles are sampled once on a straight reference rope and
+bent onto a random centre line by arc length s (from the held end),
+``theta(s) = theta0 + sum_k a_k (sin(k pi s / L + phi_k) - sin(phi_k))`` (k = 1..3,
+``a_k`` uniform in ``[-A/k, A/k]``, A = 0.4 rad, heading ``theta0`` uniform in +-0.3 rad),
+its held end at the canonical one (rope centred on the table along +x) plus a uniform
+offset of up to 2 cm in x and y. Particles keep their index across seeds.
+
+Goal (fixed per task). The end state (step 70) of the *canonical throw* from the canonical
+initial state (the straight rope). The throw (``scene.throw``) is three smooth gripper
+moves, each a raised-cosine velocity bump: drag back 10 cm (and up 2 cm) over steps 0-29
+(straightening the rope behind the gripper), whip sideways (2, 7, 0) cm over steps 30-51,
+lay the end down (2, -2, -2) cm over steps 52-61; then the rope settles. Peak speed
+0.69 m/s.
+
+Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
+and the goal's; ``lam = 7 /m``: ``r_gt = exp(-7 D)`` is 0.85 at D = 2.3 cm and 0.5 at
+D = 10 cm. Seeds 0-3: the scripted expert ends at r_gt 0.85-0.93 (D 1-2.4 cm), doing
+nothing at 0.56-0.64 (D 6.4-8.4 cm).
+
+Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
+canonical throw's velocity at step t plus a feedback term that steers the gripper onto the
+canonical path (half the position error per step), so it reproduces the goal from a
+randomised start; the drag phase removes most of the initial bend.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dax_physics import (
+    ColliderSpec,
+    ColliderState,
+    Material,
+    MPMConfig,
+    init_state,
+    sampling,
+    substep,
+)
+
+from .template import TaskDef, TaskSpec
+
+
+@dataclasses.dataclass(frozen=True)
+class WhipRopeScene:
+    """Static scene of Whip-Rope (SI units); see the module docstring."""
+
+    dx: float = 0.0125                # grid cell [m]
+    dt: float = 6.25e-4               # substep [s]
+    domain: tuple = (80, 80, 24)      # cells (1.0 x 1.0 x 0.3 m)
+    window: tuple = (30, 30, 12)      # active-region cells
+    table_z: float = 0.045            # table height [m]
+    table_friction: float = 0.4
+    rope_length: float = 0.25         # [m]
+    rope_radius: float = 0.01         # [m]
+    ppc: int = 8                      # particles per cell
+    density: float = 1100.0           # [kg/m^3]
+    youngs_modulus: float = 4.0e4     # [Pa]
+    poisson_ratio: float = 0.3
+    grip_length: float = 0.03         # held length of rope at the s = 0 end [m]
+    max_speed: float = 2.5            # largest expected particle speed [m/s] (CFL guard)
+    grip_speed: float = 0.75          # largest gripper speed (norm) [m/s]
+    grip_low: tuple = (0.15, 0.15)    # gripper workspace (x, y) [m]; z >= rest height
+    grip_high: tuple = (0.85, 0.85, 0.13)
+    bend_amplitude: float = 0.4       # A [rad]
+    bend_modes: int = 3
+    heading_range: float = 0.3        # [rad]
+    offset_range: float = 0.02        # [m]
+    #: canonical throw: phases (start step, steps, dx, dy, dz [m]) of the gripper, each a
+    #: raised-cosine velocity bump that moves the gripper by (dx, dy, dz).
+    throw: tuple = (
+        (0, 30, -0.10, 0.0, 0.02),
+        (30, 22, 0.02, 0.07, 0.0),
+        (52, 10, 0.02, -0.02, -0.02),
+    )
+    segment: int = 8                  # substeps per checkpointed segment
+
+    @property
+    def centre(self) -> tuple:
+        return (0.5 * self.domain[0] * self.dx, 0.5 * self.domain[1] * self.dx)
+
+
+def mpm_config(scene: WhipRopeScene) -> MPMConfig:
+    """The MPM configuration of the scene (raises if ``dt`` is unstable). The only collider
+    is the table: the gripper is kinematic and imposed on the held particles (see
+    :func:`apply_action`), so it costs no signed-distance evaluation on the grid."""
+    mat = Material("elastic", scene.density, youngs_modulus=scene.youngs_modulus,
+                   poisson_ratio=scene.poisson_ratio)
+    colliders = (ColliderSpec("plane", (), mode="separate", friction=scene.table_friction),)
+    return MPMConfig(materials=(mat,), dx=scene.dx, dt=scene.dt, domain=scene.domain,
+                     window=scene.window, walls="slip", colliders=colliders,
+                     max_speed=scene.max_speed)
+
+
+def rest_particles(scene: WhipRopeScene):
+    """Reference particles ``(s, u, w)`` [m] of the straight rope (s along it from the held
+    end, u across, w up, relative to its axis) and the rest volume per particle [m^3]."""
+    r, length = scene.rope_radius, scene.rope_length
+    x, vol = sampling.box([0.0, -r, -r], [length, r, r], scene.dx, ppc=scene.ppc, seed=0)
+    keep = x[:, 1] ** 2 + x[:, 2] ** 2 <= r * r
+    return x[keep], vol
+
+
+def held_mask(scene: WhipRopeScene) -> np.ndarray:
+    """(N,) bool: the particles the gripper holds (the first ``grip_length`` of the rope);
+    the same indices for every seed (NumPy, a constant under ``jit``)."""
+    rest, _ = rest_particles(scene)
+    return rest[:, 0] < scene.grip_length
+
+
+def _place(scene, rest, theta_fn, start):
+    """Bend the reference particles onto the centre line with tangent angle ``theta_fn(s)``
+    starting (s = 0, the held end) at ``start`` (2,), resting on the table."""
+    n = 257
+    s = jnp.linspace(0.0, scene.rope_length, n)
+    th = theta_fn(s)
+    ds = scene.rope_length / (n - 1)
+    mid = 0.5 * (th[1:] + th[:-1])
+    cx = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.cos(mid) * ds)])
+    cy = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.sin(mid) * ds)])
+    sp, u, w = rest[:, 0], rest[:, 1], rest[:, 2]
+    px, py, pt = jnp.interp(sp, s, cx), jnp.interp(sp, s, cy), jnp.interp(sp, s, th)
+    x = px - u * jnp.sin(pt) + start[0]
+    y = py + u * jnp.cos(pt) + start[1]
+    z = scene.table_z + scene.rope_radius + w
+    return jnp.stack([x, y, jnp.broadcast_to(z, x.shape)], axis=1).astype(jnp.float32)
+
+
+def _rope_start(scene: WhipRopeScene) -> np.ndarray:
+    """Canonical position (x, y) of the rope's s = 0 end: the rope centred on the table."""
+    cx, cy = scene.centre
+    return np.asarray([cx - 0.5 * scene.rope_length, cy], np.float32)
+
+
+def straight(scene: WhipRopeScene, rest) -> np.ndarray:
+    """The reference particles laid straight along +x, centred on the table (NumPy, so it
+    stays a constant under ``jit``); equals ``_place`` with ``theta = 0``."""
+    x0, y0 = _rope_start(scene)
+    z = scene.table_z + scene.rope_radius + rest[:, 2]
+    return np.stack([rest[:, 0] + x0, rest[:, 1] + y0, z], axis=1).astype(np.float32)
+
+
+def _template(scene: WhipRopeScene, rest, vol):
+    """The canonical initial state (validated by ``init_state``): fixes dtypes and shapes."""
+    colliders = ColliderState.create([[0.0, 0.0, scene.table_z]])
+    return init_state(mpm_config(scene), straight(scene, rest), vol=vol, colliders=colliders)
+
+
+def canonical_state(scene: WhipRopeScene):
+    """The canonical initial state: the rope straight along +x, centred on the table."""
+    rest, vol = rest_particles(scene)
+    return _template(scene, rest, vol)
+
+
+def canonical_start(scene: WhipRopeScene) -> np.ndarray:
+    """The gripper position (centroid of the held particles) of the canonical state."""
+    rest, _ = rest_particles(scene)
+    return straight(scene, rest)[held_mask(scene)].mean(0).astype(np.float32)
+
+
+def init(key, spec: TaskSpec):
+    """A random rope shape on the table (see the module docstring), at rest, its first
+    ``grip_length`` held by the gripper."""
+    scene = spec.scene
+    rest, vol = rest_particles(scene)
+    template = _template(scene, rest, vol)  # checked once, at trace time
+    k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
+    modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
+    amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
+    amp = amp * scene.bend_amplitude / modes
+    phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
+    theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
+                                maxval=scene.heading_range)
+    offset = jax.random.uniform(k_off, (2,), minval=-scene.offset_range,
+                                maxval=scene.offset_range)
+
+    def theta(s):
+        arg = modes[:, None] * math.pi * s[None, :] / scene.rope_length + phase[:, None]
+        bend = jnp.sin(arg) - jnp.sin(phase[:, None])  # zero at the held end
+        return theta0 + jnp.sum(amp[:, None] * bend, axis=0)
+
+    start = jnp.asarray(_rope_start(scene)) + offset
+    return template.replace(x=_place(scene, jnp.asarray(rest), theta, start))
+
+
+def workspace(scene: WhipRopeScene):
+    """The gripper's workspace ``(low, high)`` [m] (3,) each: ``grip_low`` / ``grip_high``
+    in x, y; in z from the held particles' rest height (rope lying on the table) to
+    ``grip_high``'s z."""
+    z0 = float(canonical_start(scene)[2])
+    lo = np.asarray([*scene.grip_low, z0], np.float32)
+    return lo, np.asarray(scene.grip_high, np.float32)
+
+
+def _step_time(spec: TaskSpec) -> float:
+    return spec.substeps * spec.scene.dt
+
+
+def _largest_divisor(n: int, at_most: int) -> int:
+    return max(d for d in range(1, min(n, at_most) + 1) if n % d == 0)
+
+
+def gripper(spec: TaskSpec, physics):
+    """The gripper position [m] (3,): the centroid of the held particles."""
+    mask = jnp.asarray(held_mask(spec.scene), physics.x.dtype)
+    return jnp.sum(physics.x * mask[:, None], axis=0) / jnp.sum(mask)
+
+
+def apply_action(spec: TaskSpec, physics, action):
+    """One env step: the gripper moves at the commanded velocity ``action`` (3,) [m/s] for
+    ``spec.substeps`` substeps; the held particles translate rigidly with it (after every
+    substep their positions are set on the gripper's path, their velocity to the gripper's
+    and their APIC matrix to zero). The speed is capped at ``grip_speed`` (norm) and the
+    gripper's end point clipped to :func:`workspace` (the velocity is scaled down
+    accordingly; a clipped component has zero gradient)."""
+    scene = spec.scene
+    cfg = mpm_config(scene)
+    if action.shape != (3,):
+        raise ValueError(f"whip_rope expects a velocity action (vx, vy, vz), got shape "
+                         f"{action.shape}")
+    T = _step_time(spec)
+    held = jnp.asarray(held_mask(scene))
+    p = gripper(spec, physics)
+    speed = jnp.sqrt(jnp.sum(action * action) + 1e-12)
+    action = action * jnp.minimum(1.0, scene.grip_speed / speed)
+    lo, hi = workspace(scene)
+    target = jnp.clip(p + action * T, jnp.asarray(lo), jnp.asarray(hi))
+    vel = (target - p) / T
+    x0 = physics.x
+    params = cfg.params
+    n = spec.substeps
+    segment = _largest_divisor(n, scene.segment)
+    h3 = held[:, None]
+
+    def body(s, i):
+        s = substep(cfg, params, s)
+        moved = x0 + vel * ((i + 1).astype(x0.dtype) * scene.dt)
+        return s.replace(x=jnp.where(h3, moved, s.x),
+                         v=jnp.where(h3, jnp.broadcast_to(vel, s.v.shape), s.v),
+                         C=jnp.where(held[:, None, None], 0.0, s.C)), None
+
+    @jax.checkpoint
+    def seg(s, idx):
+        return jax.lax.scan(body, s, idx)[0]
+
+    idx = jnp.arange(n, dtype=jnp.int32).reshape(n // segment, segment)
+    return jax.lax.scan(lambda s, i: (seg(s, i), None), physics, idx)[0]
+
+
+def throw_velocities(spec: TaskSpec) -> np.ndarray:
+    """The canonical throw's gripper velocity per env step (horizon, 3) [m/s]: each phase
+    of ``scene.throw`` is a raised-cosine bump whose per-step averages move the gripper by
+    exactly the phase's displacement."""
+    T = _step_time(spec)
+    v = np.zeros((spec.horizon, 3), np.float64)
+    for start, steps, *disp in spec.scene.throw:
+        edges = np.linspace(0.0, 1.0, steps + 1)
+        cum = edges - np.sin(2 * np.pi * edges) / (2 * np.pi)  # integral of 1 - cos(2 pi u)
+        frac = np.diff(cum)
+        for k in range(steps):
+            if 0 <= start + k < spec.horizon:
+                v[start + k] += frac[k] * np.asarray(disp) / T
+    return v.astype(np.float32)
+
+
+def canonical_path(spec: TaskSpec) -> np.ndarray:
+    """The canonical gripper position at the start of each env step (horizon + 1, 3)."""
+    v = throw_velocities(spec)
+    p0 = canonical_start(spec.scene).astype(np.float64)
+    return (p0 + np.concatenate([np.zeros((1, 3)), np.cumsum(v * _step_time(spec), 0)])
+            ).astype(np.float32)
+
+
+def goal(spec: TaskSpec):
+    """The goal (N, 3) [m]: the rope after the canonical throw (``throw_velocities`` for
+    ``spec.horizon`` steps) from the canonical initial state."""
+    scene = spec.scene
+    vel = throw_velocities(spec)
+    with jax.ensure_compile_time_eval():
+        state = canonical_state(scene)
+
+        def run(s):
+            return jax.lax.scan(lambda c, a: (apply_action(spec, c, a), None), s,
+                                jnp.asarray(vel))[0]
+
+        state = jax.jit(run)(state)
+        return np.asarray(state.x, np.float32)
+
+
+#: Feedback gain of the expert's tracking of the canonical gripper path (per env step).
+TRACK_GAIN = 0.5
+
+
+def expert_action(spec: TaskSpec, physics, t):
+    """Track the canonical throw: its velocity at step ``t`` plus ``TRACK_GAIN`` of the
+    gripper's position error to the canonical path per step."""
+    vel = jnp.asarray(throw_velocities(spec))
+    path = jnp.asarray(canonical_path(spec))
+    t = jnp.clip(t, 0, spec.horizon - 1)
+    err = path[t] - gripper(spec, physics)
+    a = vel[t] + TRACK_GAIN * err / _step_time(spec)
+    return jnp.clip(a, jnp.asarray(spec.action_low), jnp.asarray(spec.action_high))
+
+
+def expert(spec: TaskSpec, state):
+    """The template's expert hook: :func:`expert_action` on the episode state."""
+    return expert_action(spec, state.physics, state.t)
+
+
+def object_points(spec: TaskSpec, physics):
+    return physics.x
+
+
+def end_effector(spec: TaskSpec, physics):
+    """The gripper position [m] (3,) (centroid of the held particles)."""
+    return gripper(spec, physics)
+
+
+def _spec() -> TaskSpec:
+    scene = WhipRopeScene()
+    vmax = scene.grip_speed
+    return TaskSpec(
+        name="whip_rope", horizon=70, action_kind="velocity", action_low=(-vmax,) * 3,
+        action_high=(vmax,) * 3, substeps=16, distance="l2", lam=7.0, aux_reward=False,
+        contact_adjustment=False, obs_stride=2, scene=scene)
+
+
+WHIP_ROPE = TaskDef(spec=_spec(), init=init, apply_action=apply_action, goal=goal,
+                    object_points=object_points, end_effector=end_effector, expert=expert)

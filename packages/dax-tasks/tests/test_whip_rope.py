@@ -1,0 +1,175 @@
+"""Whip-Rope behaviour: jit/vmap, rewards, determinism, gradients, the grasp, the expert.
+
+Uses a small configuration (8 substeps per step, a 16-step horizon and a proportionally
+shorter canonical throw) so the file runs quickly; the scene's resolution is the default.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import dax_tasks
+from dax_physics.mpm import total_mass
+from dax_tasks import whip_rope as wr
+
+HORIZON = 16
+SMALL_THROW = ((0, 8, -0.015, 0.0, 0.005), (8, 6, 0.0, 0.012, 0.0))
+
+
+def small_overrides():
+    scene = dataclasses.replace(wr.WHIP_ROPE.spec.scene, throw=SMALL_THROW)
+    return dict(substeps=8, horizon=HORIZON, scene=scene)
+
+
+@pytest.fixture(scope="module")
+def wtask():
+    return dax_tasks.make("whip_rope", **small_overrides())
+
+
+@pytest.fixture(scope="module")
+def wbatched():
+    return dax_tasks.make("whip_rope", batch_size=2, **small_overrides())
+
+
+@pytest.fixture(scope="module")
+def wreset(wtask):
+    return wtask.reset(jax.random.PRNGKey(0))
+
+
+def _step_time(task):
+    return task.spec.substeps * task.spec.scene.dt
+
+
+def _episode(task, seed, policy):
+    _, s = task.reset(jax.random.PRNGKey(seed))
+    r = None
+    for _ in range(task.horizon):
+        _, s, r, _, info = task.step(s, policy(s))
+        assert bool(info["finite"]) and not bool(info["escaped"]), info
+    return s, float(r)
+
+
+def test_default_spec_and_canonical_throw_are_feasible():
+    spec = wr.WHIP_ROPE.spec
+    assert spec.horizon == 70 and spec.action_kind == "velocity" and spec.action_dim == 3
+    assert spec.distance == "l2"
+    vel = wr.throw_velocities(spec)
+    speed = np.linalg.norm(vel, axis=1)
+    assert speed.max() <= spec.scene.grip_speed, f"throw peak speed {speed.max():.3f} m/s"
+    assert np.all(vel <= np.asarray(spec.action_high)) and np.all(vel >= spec.action_low)
+    path = wr.canonical_path(spec)
+    lo, hi = wr.workspace(spec.scene)
+    assert np.all(path >= lo - 1e-6) and np.all(path <= hi + 1e-6), (path.min(0), path.max(0))
+    disp = path[-1] - path[0]
+    want = np.sum([p[2:] for p in spec.scene.throw], axis=0)
+    np.testing.assert_allclose(disp, want, atol=1e-5)
+
+
+def test_reset_and_step_under_jit_and_vmap(wtask, wbatched):
+    keys = jax.random.split(jax.random.PRNGKey(7), 2)
+    obs, state = wbatched.reset(keys)
+    assert obs.shape == (2, *wtask.observation_space.shape)
+    assert state.physics.x.shape == (2, *wtask.goal.shape)
+    acts = np.stack([np.asarray([0.3, -0.2, 0.1], np.float32),
+                     np.asarray(wtask.expert_action(
+                         jax.tree_util.tree_map(lambda v: v[1], state)))])
+    _, new, reward, done, info = wbatched.step(state, acts)
+    assert reward.shape == (2,) and done.shape == (2,) and bool(jnp.all(info["finite"]))
+    for i in range(2):
+        _, s1 = wtask.reset(keys[i])
+        _, n1, r1, _, _ = wtask.step(s1, acts[i])
+        assert float(reward[i]) == pytest.approx(float(r1), abs=1e-5)
+        np.testing.assert_allclose(np.asarray(new.physics.x[i]), np.asarray(n1.physics.x),
+                                   atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(2, 3\)"):
+        wbatched.step(state, np.zeros(3, np.float32))
+
+
+def test_rewards_finite_and_in_unit_interval(wtask, wreset):
+    _, s = wreset
+    key = jax.random.PRNGKey(1)
+    for t in range(4):
+        a = wtask.action_space.sample(jax.random.fold_in(key, t)) if t % 2 else \
+            wtask.expert_action(s)
+        _, s, r, done, info = wtask.step(s, a)
+        for v in (r, info["r_gt"]):
+            assert np.isfinite(float(v)) and 0.0 <= float(v) <= 1.0, f"got {float(v)}"
+        assert bool(info["finite"]) and not bool(info["escaped"]) and not bool(done)
+
+
+def test_same_seed_same_trajectory(wtask):
+    def run(seed):
+        obs, s = wtask.reset(jax.random.PRNGKey(seed))
+        out = [obs]
+        for _ in range(2):
+            obs, s, r, _, _ = wtask.step(s, wtask.expert_action(s))
+            out += [obs, r]
+        return out
+
+    a, b, c = run(3), run(3), run(4)
+    for u, v in zip(a, b, strict=True):
+        np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    assert not np.allclose(np.asarray(a[0]), np.asarray(c[0])), "seeds 3 and 4 gave equal obs"
+
+
+def test_action_gradient_finite_and_nonzero(wtask, wreset):
+    _, s = wreset
+    _, s, *_ = wtask.step(s, wtask.expert_action(s))  # the rope is moving
+
+    def r_gt(action):
+        return wtask._step_one(s, action)[4]["r_gt"]
+
+    g = jax.jit(jax.grad(r_gt))(jnp.asarray([-0.4, 0.1, 0.1]))
+    assert bool(jnp.all(jnp.isfinite(g))), g
+    assert float(jnp.max(jnp.abs(g))) > 0.0, f"expected a non-zero action gradient, got {g}"
+
+
+def test_held_end_follows_gripper(wtask, wreset):
+    _, s = wreset
+    held = wr.held_mask(wtask.spec.scene)
+    assert 0 < held.sum() < held.size // 4
+    T = _step_time(wtask)
+    a = np.asarray([0.3, -0.2, 0.1], np.float32)
+    x0 = np.asarray(s.physics.x)
+    _, s1, *_ = wtask.step(s, a)
+    x1 = np.asarray(s1.physics.x)
+    # every held particle moved rigidly with the gripper
+    np.testing.assert_allclose(x1[held] - x0[held], np.broadcast_to(a * T, x0[held].shape),
+                               atol=2e-5)
+    np.testing.assert_allclose(np.asarray(s1.physics.v)[held],
+                               np.broadcast_to(a, x0[held].shape), atol=1e-5)
+    ee0 = np.asarray(wr.end_effector(wtask.spec, s.physics))
+    ee1 = np.asarray(wr.end_effector(wtask.spec, s1.physics))
+    np.testing.assert_allclose(ee1 - ee0, a * T, atol=2e-5)
+    # the free rope is pulled along (towards +x on average, it starts at rest)
+    assert float(np.mean(x1[~held, 0] - x0[~held, 0])) > 0.0
+    # speed cap (norm) and the workspace floor
+    _, s2, *_ = wtask.step(s, np.asarray([0.75, 0.75, -0.75], np.float32))
+    d = np.asarray(wr.end_effector(wtask.spec, s2.physics)) - ee0
+    assert float(np.linalg.norm(d[:2])) <= wtask.spec.scene.grip_speed * T + 1e-5
+    assert float(d[2]) >= -1e-6, f"the gripper went below the workspace: dz = {d[2]}"
+
+
+def test_mass_conserved(wtask, wreset):
+    _, s0 = wreset
+    params = wr.mpm_config(wtask.spec.scene).params
+    m0 = float(total_mass(params, s0.physics))
+    s = s0
+    for _ in range(3):
+        _, s, *_ = wtask.step(s, wtask.expert_action(s))
+    assert s.physics.x.shape == s0.physics.x.shape
+    assert float(total_mass(params, s.physics)) == pytest.approx(m0, rel=1e-6)
+    rope = np.pi * wtask.spec.scene.rope_radius ** 2 * wtask.spec.scene.rope_length
+    assert m0 == pytest.approx(wtask.spec.scene.density * rope, rel=0.15)
+
+
+def test_expert_improves_over_zero_actions(wtask):
+    zero = np.zeros(3, np.float32)
+    for seed in range(2):
+        _, r_exp = _episode(wtask, seed, wtask.expert_action)
+        _, r_zero = _episode(wtask, seed, lambda s: zero)
+        assert r_exp > r_zero + 0.01, (
+            f"seed {seed}: expert r_gt {r_exp:.4f} vs zero actions {r_zero:.4f}")
