@@ -35,9 +35,12 @@ Contact modes for grid velocities ``v`` relative to the collider ``v_rel = v - v
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._pytree import pytree_dataclass
 
@@ -137,55 +140,70 @@ def _safe_norm(v, axis=-1):
     return jnp.sqrt(jnp.sum(v * v, axis=axis) + _EPS)
 
 
-def _box_sdf(p, h):
-    q = jnp.abs(p) - h
-    outside = _safe_norm(jnp.maximum(q, 0.0))
-    outside = jnp.where(jnp.all(q <= 0.0, axis=-1), 0.0, outside)
-    return outside + jnp.minimum(jnp.max(q, axis=-1), 0.0)
+# The signed distances below take the three coordinates as separate arrays (structure of
+# arrays): on CPU, XLA vectorises elementwise math on (M,) rows far better than on (M, 3)
+# rows of three. Measured on the two Pour-Water bowls over a 34 x 24 x 28 grid: 1.1 ms
+# against 5 ms for the same math on (M, 3) points with a per-point vmap(grad).
+
+def _hypot(*c):
+    return jnp.sqrt(sum(ci * ci for ci in c) + _EPS)
 
 
-def _cyl_sdf(p, r, hh, zc=0.0):
-    d = jnp.stack([_safe_norm(p[..., :2]) - r, jnp.abs(p[..., 2] - zc) - hh], -1)
-    outside = _safe_norm(jnp.maximum(d, 0.0))
-    outside = jnp.where(jnp.all(d <= 0.0, axis=-1), 0.0, outside)
-    return outside + jnp.minimum(jnp.max(d, axis=-1), 0.0)
+def _outside_inside(d):
+    """Exact SDF from per-axis distances ``d`` (tuple of arrays) of a convex slab set."""
+    outside = _hypot(*(jnp.maximum(di, 0.0) for di in d))
+    inside_all = functools.reduce(jnp.logical_and, [di <= 0.0 for di in d])
+    outside = jnp.where(inside_all, 0.0, outside)
+    return outside + jnp.minimum(functools.reduce(jnp.maximum, d), 0.0)
+
+
+def _box_sdf(px, py, pz, h):
+    return _outside_inside((jnp.abs(px) - h[0], jnp.abs(py) - h[1], jnp.abs(pz) - h[2]))
+
+
+def _cyl_sdf(px, py, pz, r, hh, zc=0.0):
+    return _outside_inside((_hypot(px, py) - r, jnp.abs(pz - zc) - hh))
+
+
+def _local_sdf_c(spec: ColliderSpec, px, py, pz):
+    d = spec.dims
+    if spec.shape == "plane":
+        return pz
+    if spec.shape == "box":
+        return _box_sdf(px, py, pz, d)
+    if spec.shape == "sphere":
+        return _hypot(px, py, pz) - d[0]
+    if spec.shape == "capsule":
+        r, hl = d
+        return _hypot(px, py, pz - jnp.clip(pz, -hl, hl)) - r
+    if spec.shape == "cylinder":
+        return _cyl_sdf(px, py, pz, d[0], d[1])
+    # bowl: outer cylinder minus a cavity open at the top.
+    r, h, t = d
+    outer = _cyl_sdf(px, py, pz, r, 0.5 * h, 0.5 * h)
+    cavity_top = h + r  # the cavity pokes out above the rim, so the cup is open
+    cavity = _cyl_sdf(px, py, pz, r - t, 0.5 * (cavity_top - t), 0.5 * (cavity_top + t))
+    return jnp.maximum(outer, -cavity)
 
 
 def local_sdf(spec: ColliderSpec, p):
     """Signed distance [m] of local-frame points ``p`` (..., 3) to the collider's surface."""
-    d = spec.dims
-    if spec.shape == "plane":
-        return p[..., 2]
-    if spec.shape == "box":
-        return _box_sdf(p, jnp.asarray(d, p.dtype))
-    if spec.shape == "sphere":
-        return _safe_norm(p) - d[0]
-    if spec.shape == "capsule":
-        r, hl = d
-        q = p.at[..., 2].set(p[..., 2] - jnp.clip(p[..., 2], -hl, hl))
-        return _safe_norm(q) - r
-    if spec.shape == "cylinder":
-        return _cyl_sdf(p, d[0], d[1])
-    # bowl: outer cylinder minus a cavity open at the top.
-    r, h, t = d
-    outer = _cyl_sdf(p, r, 0.5 * h, 0.5 * h)
-    cavity_top = h + r  # the cavity pokes out above the rim, so the cup is open
-    cavity = _cyl_sdf(p, r - t, 0.5 * (cavity_top - t), 0.5 * (cavity_top + t))
-    return jnp.maximum(outer, -cavity)
+    return _local_sdf_c(spec, p[..., 0], p[..., 1], p[..., 2])
 
 
 def sdf(spec: ColliderSpec, pos, quat, x):
-    """World-frame signed distance [m] and outward unit normal at points ``x`` (..., 3)."""
+    """World-frame signed distance [m] and outward unit normal at points ``x`` (..., 3).
+    The normal is the SDF's gradient (reverse mode over all points at once: each point's
+    distance depends on that point only)."""
     R = quat_to_matrix(quat)
-    p = (x - pos) @ R  # R^T (x - pos) for row vectors
-
-    def one(pl):
-        return local_sdf(spec, pl)
-
-    flat = p.reshape(-1, 3)
-    phi, grad = jax.vmap(jax.value_and_grad(one))(flat)
-    n = grad @ R.T
-    n = n / _safe_norm(n)[..., None]
+    pt = R.T @ (x.reshape(-1, 3) - pos).T  # (3, M) local coordinates, one row per axis
+    if spec.shape == "plane":
+        phi, grad = pt[2], jnp.zeros_like(pt).at[2].set(1.0)
+    else:
+        phi, back = jax.vjp(lambda q: _local_sdf_c(spec, q[0], q[1], q[2]), pt)
+        (grad,) = back(jnp.ones_like(phi))
+    n = R @ grad
+    n = (n / jnp.sqrt(jnp.sum(n * n, axis=0) + _EPS)).T
     return phi.reshape(x.shape[:-1]), n.reshape(x.shape)
 
 
@@ -216,13 +234,89 @@ def project_velocity(spec: ColliderSpec, v, v_c, n, inside):
     return jnp.where(apply, v_c + v_t, v)
 
 
-def apply_colliders(specs, state: ColliderState, x, v):
-    """Apply every collider's boundary condition to velocities ``v`` at grid points ``x``."""
+#: Grid nodes within this distance [m] outside a collider's surface count as touching it.
+#: MPM nodes lie on a lattice, and scenes put surfaces on lattice planes (a bowl's rim at a
+#: whole number of cells): such a node's SDF is zero up to float32 rounding (+-4e-9 m at
+#: 0.1 m), so without a tolerance whether it touches depends on how XLA fused the
+#: arithmetic (measured: 124 rim nodes of the Pour-Water target bowl flipped between two
+#: compilations, and the water's path with them).
+SURFACE_TOL = 1e-6
+
+
+def apply_colliders(specs, state: ColliderState, x, v, tol: float = 0.0):
+    """Apply every collider's boundary condition to velocities ``v`` at points ``x``; a
+    point touches a collider where its SDF is below ``margin + tol``."""
     for k, spec in enumerate(specs):
         phi, n = sdf(spec, state.pos[k], state.quat[k], x)
-        inside = phi < spec.margin
+        inside = phi < spec.margin + tol
         v = project_velocity(spec, v, velocity_at(state, k, x), n, inside)
     return v
+
+
+def bounding_sphere(spec: ColliderSpec):
+    """``(centre, radius)`` of a sphere in the collider's local frame [m] that holds every
+    point where the SDF is below ``margin`` (the solid grown by its skin), or None for the
+    unbounded plane."""
+    d = spec.dims
+    if spec.shape == "plane":
+        return None
+    centre = (0.0, 0.0, 0.0)
+    if spec.shape == "bowl":  # the solid lies inside its outer cylinder, z in [0, height]
+        centre, radius = (0.0, 0.0, 0.5 * d[1]), math.hypot(d[0], 0.5 * d[1])
+    elif spec.shape == "box":
+        radius = math.sqrt(sum(h * h for h in d))
+    elif spec.shape == "sphere":
+        radius = d[0]
+    elif spec.shape == "capsule":
+        radius = d[0] + d[1]
+    else:  # cylinder
+        radius = math.hypot(d[0], d[1])
+    return centre, radius + max(spec.margin, 0.0)
+
+
+def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, origin):
+    """:func:`apply_colliders` on the nodes of a grid window: ``v`` (prod(window), 3) are the
+    velocities of nodes ``origin + (i, j, k)`` [cells], row-major over ``window``.
+
+    A bounded collider is evaluated only on the cube of nodes around its bounding sphere
+    (a static size, placed where the collider is), not on the whole window: nodes outside
+    it cannot be inside the collider, so the result is the same. On Pour-Water this
+    evaluates each bowl on 3.4k or 4.9k of the 23k nodes. Nodes within :data:`SURFACE_TOL` outside
+    a surface count as touching it."""
+    window = tuple(int(w) for w in window)
+    n_all = math.prod(window)
+    idx_all = None
+    v4 = v.reshape(*window, 3)
+    for k, spec in enumerate(specs):
+        bound = bounding_sphere(spec)
+        half = None if bound is None else math.ceil(bound[1] / dx) + 1
+        side = None if half is None else tuple(min(2 * half + 1, w) for w in window)
+        if side is None or 2 * math.prod(side) > n_all:
+            if idx_all is None:
+                idx_all = jnp.asarray(np.indices(window).reshape(3, -1).T, jnp.int32)
+            x = (idx_all + origin).astype(v.dtype) * dx
+            v4 = apply_colliders((spec,), _row(state, k), x, v4.reshape(-1, 3), SURFACE_TOL)
+            v4 = v4.reshape(*window, 3)
+            continue
+        R = quat_to_matrix(state.quat[k])
+        centre = state.pos[k] + R @ jnp.asarray(bound[0], v.dtype)
+        cell = jnp.floor(jax.lax.stop_gradient(centre) / dx).astype(jnp.int32)
+        start = jnp.clip(cell - half - origin, 0, jnp.asarray(window) - jnp.asarray(side))
+        start = start.astype(jnp.int32)
+        zero = jnp.zeros((), jnp.int32)
+        sub = jax.lax.dynamic_slice(v4, (start[0], start[1], start[2], zero), (*side, 3))
+        idx = jnp.asarray(np.indices(side).reshape(3, -1).T, jnp.int32)
+        x = (idx + start + origin).astype(v.dtype) * dx
+        sub = apply_colliders((spec,), _row(state, k), x, sub.reshape(-1, 3), SURFACE_TOL)
+        v4 = jax.lax.dynamic_update_slice(v4, sub.reshape(*side, 3),
+                                          (start[0], start[1], start[2], zero))
+    return v4.reshape(-1, 3)
+
+
+def _row(state: ColliderState, k: int) -> ColliderState:
+    """Collider ``k`` of ``state`` as a one-collider state."""
+    return ColliderState(pos=state.pos[k:k + 1], quat=state.quat[k:k + 1],
+                         lin_vel=state.lin_vel[k:k + 1], ang_vel=state.ang_vel[k:k + 1])
 
 
 def advance(state: ColliderState, dt) -> ColliderState:

@@ -514,8 +514,8 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
         else:
             gv = jnp.where((lo_wall & (gv < 0)) | (hi_wall & (gv > 0)), 0.0, gv)
     if cfg.colliders:
-        xg = node.astype(dtype) * dx
-        gv = col.apply_colliders(cfg.colliders, state.colliders, xg, gv)
+        gv = col.apply_colliders_grid(cfg.colliders, state.colliders, gv, dx, cfg.window,
+                                      origin)
     gv = jnp.where(has_mass[:, None], gv, 0.0)
 
     # G2P: gather each particle's 3x3x3 block (padded to 4 channels: aligned rows gather
