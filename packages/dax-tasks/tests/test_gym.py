@@ -18,11 +18,17 @@ def test_all_nine_ids_registered():
         assert env_id in gym.registry, env_id
 
 
-@pytest.mark.parametrize("env_id", ["dax/FoldCloth1-v0", "dax/UnfoldCloth1-v0"])
+# one per kind of action: pick-and-place (fold / unfold), velocity (whip), velocity and
+# wrist rotation (pour), push (push_rope)
+@pytest.mark.parametrize("env_id", ["dax/FoldCloth1-v0", "dax/UnfoldCloth1-v0",
+                                    "dax/WhipRope-v0", "dax/PourWater-v0",
+                                    "dax/PushRope-v0"])
 def test_check_env_passes(env_id):
     env = gym.make(env_id, render_mode="rgb_array")
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*infinity.*")  # positions are unbounded
+        # a recommendation for RL libraries: our bounds are in physical units (m/s, m)
+        warnings.filterwarnings("ignore", message=".*symmetric and normalized.*")
         check_env(env.unwrapped, skip_render_check=False)
 
 

@@ -19,7 +19,11 @@ Shapes, in the collider's local frame (the solid is where the SDF is negative):
 ``cylinder``  ``dims = (r, half_height)``, axis local z, centred at the origin.
 ``bowl``      ``dims = (r_outer, height, wall)``: an open cup, bottom at local z = 0, rim at
               z = height, wall and bottom thickness ``wall``. Make ``wall`` at least about
-              two grid cells so MPM particles cannot tunnel through it.
+              two grid cells so MPM particles cannot tunnel through it. On the MPM grid,
+              nodes more than dx/2 inside the wall move with the bowl whatever the mode:
+              in a wall two cells thick the middle node's SDF gradient vanishes (both
+              faces are equally near) and the next one's points out of the far face, so
+              liquid resting on the bottom would otherwise sink into it.
 
 Contact modes for grid velocities ``v`` relative to the collider ``v_rel = v - v_c``
 (``n`` is the outward normal):
@@ -243,13 +247,18 @@ def project_velocity(spec: ColliderSpec, v, v_c, n, inside):
 SURFACE_TOL = 1e-6
 
 
-def apply_colliders(specs, state: ColliderState, x, v, tol: float = 0.0):
+def apply_colliders(specs, state: ColliderState, x, v, tol: float = 0.0, depth=None):
     """Apply every collider's boundary condition to velocities ``v`` at points ``x``; a
-    point touches a collider where its SDF is below ``margin + tol``."""
+    point touches a collider where its SDF is below ``margin + tol``. With ``depth`` [m],
+    points more than ``depth`` inside a bowl's wall move with the bowl (see the module
+    docstring)."""
     for k, spec in enumerate(specs):
         phi, n = sdf(spec, state.pos[k], state.quat[k], x)
         inside = phi < spec.margin + tol
-        v = project_velocity(spec, v, velocity_at(state, k, x), n, inside)
+        v_c = velocity_at(state, k, x)
+        v = project_velocity(spec, v, v_c, n, inside)
+        if depth is not None and spec.shape == "bowl":
+            v = jnp.where((phi < -depth)[..., None], v_c, v)
     return v
 
 
@@ -295,7 +304,8 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
             if idx_all is None:
                 idx_all = jnp.asarray(np.indices(window).reshape(3, -1).T, jnp.int32)
             x = (idx_all + origin).astype(v.dtype) * dx
-            v4 = apply_colliders((spec,), _row(state, k), x, v4.reshape(-1, 3), SURFACE_TOL)
+            v4 = apply_colliders((spec,), _row(state, k), x, v4.reshape(-1, 3), SURFACE_TOL,
+                                 0.5 * dx)
             v4 = v4.reshape(*window, 3)
             continue
         R = quat_to_matrix(state.quat[k])
@@ -307,7 +317,8 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
         sub = jax.lax.dynamic_slice(v4, (start[0], start[1], start[2], zero), (*side, 3))
         idx = jnp.asarray(np.indices(side).reshape(3, -1).T, jnp.int32)
         x = (idx + start + origin).astype(v.dtype) * dx
-        sub = apply_colliders((spec,), _row(state, k), x, sub.reshape(-1, 3), SURFACE_TOL)
+        sub = apply_colliders((spec,), _row(state, k), x, sub.reshape(-1, 3), SURFACE_TOL,
+                             0.5 * dx)
         v4 = jax.lax.dynamic_update_slice(v4, sub.reshape(*side, 3),
                                           (start[0], start[1], start[2], zero))
     return v4.reshape(-1, 3)

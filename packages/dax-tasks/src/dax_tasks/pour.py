@@ -18,9 +18,11 @@ whole domain is simulated (no moving window: spilled liquid may spread anywhere 
   a chunk's strain under its own weight is below 1 %.
 
 Speed (batch 1, 2-core CPU, ``python -m dax_tasks.bench --tasks pour_water,pour_soup
---batch 1``): 0.22 s (water) and 0.26 s (soup) per environment step, 0.98 s / 1.14 s with
-the action gradient. About 92 % of a substep is the two bowl colliders' SDF evaluated on
-every node of the 34 x 24 x 28 grid (10.9 ms per substep with them, 0.9 ms without).
+--batch 1``): 0.019 s (water) and 0.026 s (soup) per environment step, 0.07 s / 0.13 s
+with the action gradient (DaXBench Pour-Water: 0.13 s per step, 0.78 s for its gradient).
+Each bowl collider is evaluated only on the node cube around it (3.4k and 4.9k of the
+22.8k nodes; ``dax_physics.colliders.apply_colliders_grid``); evaluated on every node
+they took 92 % of a substep (0.22 s per step).
 
 Substeps: ``dt`` = 0.025 / 30 s (water) and 0.025 / 36 s (soup), within the CFL bound
 for ``max_speed`` 1.5 m/s; ``substeps`` = 30 / 36, so one environment step is 25 ms of
@@ -46,8 +48,9 @@ bottom to the rim, grown by ``dx/2`` for particles resting against the walls), 0
 For the soup the chunks' particles count like water's (the ingredients must go too).
 ``lam = 20 /m``: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
 about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
-scripted expert scores 0.83 at the end of a Pour-Water episode (seed 0, peak 0.89) and
-0.91 at the end of a Pour-Soup episode (peak 0.98); zero actions keep about 0.16.
+scripted expert ends a Pour-Water episode at 0.950 +- 0.003 (seeds 0-19; 91-94 % of the
+particles in the cavity, the rest splashed onto the table) and a Pour-Soup episode at 1.0
+(everything in), random actions at 0.15 and 0.13 (``dax-data score --task T --seeds 20``).
 ``goal(spec)`` (the (N, 3) goal set the template stores) is N particles packed on a
 regular lattice in the target cavity from its bottom up; ``D`` itself does not use it.
 

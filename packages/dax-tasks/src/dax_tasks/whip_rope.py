@@ -19,9 +19,8 @@ Resolution (what the scene needs, no more). Cells ``dx`` = 1.25 cm; 8 particles 
 and tears at the grip.
 
 Measured (2-core CPU, batch 1, ``python -m dax_tasks.bench --tasks whip_rope --batch
-1``): about 0.021 s per env step forward, 0.07-0.10 s with the action gradient (DaXBench
-Whip-Rope: 0.125 s per step). About half of a substep is the table's plane collider evaluated
-on every window node.
+1``): 0.011 s per env step forward, 0.034 s with the action gradient (DaXBench
+Whip-Rope: 0.125 s per step).
 
 Action (``velocity``): the gripper's velocity ``(vx, vy, vz)`` [m/s], held for the env step.
 Bounds +-0.75 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 0.75 m/s:
