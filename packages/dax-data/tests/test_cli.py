@@ -196,3 +196,43 @@ def test_overrides_make_a_small_scene_and_are_part_of_the_arguments(env, tmp_pat
     assert_one_line_error(run(env, *args, "--override", "scene.nope=1"),
                           "unknown scene override")
     assert_one_line_error(run(env, *args, "--override", "substeps"), "KEY=VALUE")
+
+
+def test_minari_export_loads_with_minari_and_recovers_the_env(env, demo, tmp_path):
+    import gymnasium as gym
+    import minari
+
+    out = tmp_path / "minari"
+    proc = run(env, "export", demo, "--format", "minari", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert "dax/fold_cloth1/expert-v0" in proc.stdout, proc.stdout
+    assert not list(out.glob(".minari-*")), "the temporary build directory was left behind"
+    os.environ["MINARI_DATASETS_PATH"] = str(out)
+    try:
+        ds = minari.load_dataset("dax/fold_cloth1/expert-v0")
+        episodes = read_all(demo)
+        assert ds.total_episodes == 3 and ds.total_steps == sum(e.length for e in episodes)
+        for got, want in zip(ds.iterate_episodes(), episodes, strict=True):
+            np.testing.assert_array_equal(got.observations, want.observations)
+            np.testing.assert_array_equal(got.actions, want.actions)
+            np.testing.assert_allclose(got.rewards, want.rewards, rtol=1e-7)
+            assert not got.terminations.any() and got.truncations[-1]
+            assert not got.truncations[:-1].any()
+        recovered = ds.recover_environment()
+        assert recovered.spec.id == "dax/FoldCloth1-v0"
+        obs, _ = recovered.reset(seed=0)
+        assert obs.shape == ds.observation_space.shape == episodes[0].observations.shape[1:]
+        assert isinstance(ds.action_space, gym.spaces.Box)
+    finally:
+        os.environ.pop("MINARI_DATASETS_PATH", None)
+    # the same id again is refused; a file recorded with overrides cannot name the env
+    assert_one_line_error(run(env, "export", demo, "--format", "minari", "--out", out),
+                          "already exists")
+    small = tmp_path / "small.h5"
+    assert run(env, "generate", "--task", TASK, "--episodes", 1, "--out", small,
+               "--no-progress", *SMALL).returncode == 0
+    assert_one_line_error(run(env, "export", small, "--format", "minari", "--out", out,
+                              "--dataset-id", "dax/fold_cloth1/small-v0"), "overrides")
+    assert not (out / "dax" / "fold_cloth1" / "small-v0").exists()
+    assert_one_line_error(run(env, "export", demo, "--format", "ply", "--out", tmp_path),
+                          "--episode")

@@ -6,7 +6,8 @@
   schema (:mod:`dax_data.fileformat`; the layout is in README.md);
 * :func:`write_goals` writes goal files in dax-tasks' format (:mod:`dax_data.goalsets`);
 * :func:`export_episode` writes VTU / XDMF / PLY for ParaView and Blender
-  (:mod:`dax_data.export`);
+  (:mod:`dax_data.export`); :func:`export_minari` a whole file as a Minari dataset
+  (:mod:`dax_data.minari_export`, optional extra ``minari``);
 * the ``dax-data`` command line (:mod:`dax_data.cli`).
 """
 
@@ -27,8 +28,9 @@ from .fileformat import (  # noqa: E402  (h5py and NumPy only: no JAX import)
 )
 
 # Imported on first use, so reading and validating files does not import JAX.
-_LAZY = {"export_episode": "export", "write_goal": "goalsets", "write_goals": "goalsets",
-         "Recorder": "record", "generate": "record", "score": "record"}
+_LAZY = {"export_episode": "export", "export_minari": "minari_export",
+         "write_goal": "goalsets", "write_goals": "goalsets", "Recorder": "record",
+         "generate": "record", "score": "record"}
 
 
 def __getattr__(name):
@@ -41,5 +43,6 @@ def __getattr__(name):
 
 __all__ = [
     "FORMAT_VERSION", "DataFileError", "DemoFile", "Episode", "Recorder", "__version__",
-    "export_episode", "generate", "load", "open_file", "score", "write_goal", "write_goals",
+    "export_episode", "export_minari", "generate", "load", "open_file", "score",
+    "write_goal", "write_goals",
 ]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from . import __version__
 from . import fileformat as ff
@@ -69,11 +70,16 @@ def _parser() -> argparse.ArgumentParser:
     v = sub.add_parser("validate", help="check a demonstration file completely")
     v.add_argument("file")
 
-    e = sub.add_parser("export", help="export an episode for ParaView / Blender")
+    e = sub.add_parser("export", help="export an episode for ParaView / Blender, or the "
+                                      "whole file as a Minari dataset")
     e.add_argument("file")
-    e.add_argument("--episode", type=_nonneg_int, required=True)
-    e.add_argument("--format", choices=("vtu", "xdmf", "ply"), required=True)
-    e.add_argument("--out", required=True, help="output directory")
+    e.add_argument("--episode", type=_nonneg_int,
+                   help="episode to export (vtu, xdmf, ply; required for those)")
+    e.add_argument("--format", choices=("vtu", "xdmf", "ply", "minari"), required=True)
+    e.add_argument("--out", required=True, help="output directory (for minari: the "
+                   "datasets root, MINARI_DATASETS_PATH)")
+    e.add_argument("--dataset-id", help="minari only: the dataset id (default "
+                   "dax/<task>/<policy>-v0)")
 
     s = sub.add_parser("score", help="expert and random final r_gt over seeds")
     s.add_argument("--task", required=True)
@@ -142,6 +148,15 @@ def _validate(a) -> None:
 
 
 def _export(a) -> None:
+    if a.format == "minari":
+        from .minari_export import export_minari
+
+        path = export_minari(a.file, a.out, a.dataset_id)
+        print(f"wrote Minari dataset {path.relative_to(Path(a.out).resolve()).as_posix()} "
+              f"under {a.out} (load it with MINARI_DATASETS_PATH={a.out})")
+        return
+    if a.episode is None:
+        raise ValueError(f"export --format {a.format} needs --episode K")
     from .export import export_episode
 
     paths = export_episode(a.file, a.episode, a.format, a.out)
@@ -174,7 +189,8 @@ def main(argv=None) -> int:
         print("dax-data: interrupted; completed episodes are on disk, rerun the same command "
               "to resume", file=sys.stderr)
         return 130
-    except (ValueError, OSError, NotImplementedError) as err:  # DataFileError, GoalFileError
+    except (ValueError, OSError, NotImplementedError, ImportError) as err:  # DataFileError,
+        # GoalFileError; ImportError: an optional dependency (minari) is missing
         msg = " ".join(str(err).split()) or type(err).__name__
         print(f"dax-data: error: {msg}", file=sys.stderr)
         return EXIT_ERROR
