@@ -9,7 +9,7 @@ evaluates, under the same interface (:func:`register`).
 
 Budgets: ``"quick"`` (the benchmark's smoke run on 2 CPU cores) and ``"full"`` (the budgets to
 report); the quick budget is smaller still on the MPM tasks (``HEAVY_TASKS``), whose
-environment step costs ~30x a cloth step. See README.md for the numbers.
+episode costs 10-100x a cloth episode. See README.md for the numbers.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from .diff_cem_mpc import DiffCEMConfig
 from .diff_mpc import DiffMPCConfig
 
 BUDGETS = ("quick", "full")
-#: Tasks simulated with MLS-MPM (an environment step costs ~0.5 s on 2 CPU cores, against
-#: ~15 ms for a cloth pick-and-place); the quick budget is smaller on them.
+#: Tasks simulated with MLS-MPM (70-100 env steps of 10-25 ms, or 6 pushes of 0.13 s, on 2
+#: CPU cores, against 3-10 cloth pick-and-places of 6 ms); the quick budget is smaller there.
 HEAVY_TASKS = frozenset({"push_rope", "pour_water", "pour_soup", "whip_rope"})
 
 
