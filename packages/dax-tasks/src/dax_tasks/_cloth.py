@@ -269,6 +269,21 @@ def folded_vertices(scene: ClothScene, substeps: int) -> np.ndarray:
         return np.asarray(state.x, np.float32)
 
 
+@functools.lru_cache(maxsize=16)
+def fold_prefix_vertices(scene: ClothScene, substeps: int, n: int) -> np.ndarray:
+    """The cloth (V, 3) [m] after the first ``n`` folds of :func:`fold_plan` from the flat
+    cloth at the target pose, as an episode has it after step ``n`` (each fold's own settling
+    only, no ``REST_TIME``; NumPy, computed once per scene)."""
+    check_scene(scene)
+    plan = fold_plan(scene)[:n]
+    with jax.ensure_compile_time_eval():
+        state = dc.ClothState.create(make_cloth(scene), n_grippers=1)
+        step = jax.jit(lambda s, a: pick_place(scene, substeps, s, a, True))
+        for index, place in plan:
+            state = step(state, plan_action(state.x, index, place))
+        return np.asarray(state.x, np.float32)
+
+
 def flat_vertices(scene: ClothScene) -> np.ndarray:
     return np.asarray(_cloth_np(scene)[0], np.float32)
 
