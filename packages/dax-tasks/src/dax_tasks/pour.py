@@ -79,7 +79,7 @@ from dax_physics import (
 )
 from dax_physics.colliders import quat_to_matrix
 
-from .template import TaskDef, TaskSpec
+from .template import TaskDef, TaskSpec, checkpointed_substeps
 
 SOURCE, TARGET = 0, 1
 _EPS = 1e-10
@@ -201,10 +201,6 @@ def wrist(scene: PourScene, colliders):
     return colliders.pos[SOURCE] + R[:, 2] * scene.source_bowl[1]
 
 
-def _largest_divisor(n: int, at_most: int) -> int:
-    return max(d for d in range(1, min(n, at_most) + 1) if n % d == 0)
-
-
 def apply_action(spec: TaskSpec, physics, action):
     """Hold ``(vx, vy, vz, omega)`` for ``spec.substeps`` substeps (see module docstring)."""
     scene = spec.scene
@@ -225,16 +221,9 @@ def apply_action(spec: TaskSpec, physics, action):
         lin = v + jnp.cross(ang, cs.pos[SOURCE] - w)
         cs = cs.replace(lin_vel=cs.lin_vel.at[SOURCE].set(lin),
                         ang_vel=cs.ang_vel.at[SOURCE].set(ang))
-        return substep(cfg, params, s.replace(colliders=cs)), None
+        return substep(cfg, params, s.replace(colliders=cs))
 
-    segment = _largest_divisor(spec.substeps, scene.segment)
-
-    @jax.checkpoint
-    def seg(s):
-        return jax.lax.scan(body, s, None, length=segment)[0]
-
-    physics = jax.lax.scan(lambda s, _: (seg(s), None), physics, None,
-                           length=spec.substeps // segment)[0]
+    physics = checkpointed_substeps(body, physics, spec.substeps, scene.segment)
     cs = physics.colliders
     return physics.replace(colliders=cs.replace(lin_vel=jnp.zeros_like(cs.lin_vel),
                                                 ang_vel=jnp.zeros_like(cs.ang_vel)))

@@ -56,7 +56,7 @@ from dax_physics import (
     substep,
 )
 
-from .template import TaskDef, TaskSpec
+from .template import TaskDef, TaskSpec, largest_divisor
 
 TABLE, PUSHER = 0, 1
 #: Pushes shorter than this [m] in the table plane are not contact-adjusted.
@@ -204,10 +204,6 @@ def init(key, spec: TaskSpec):
     return template.replace(x=_place(scene, jnp.asarray(rest), theta, offset))
 
 
-def _largest_divisor(n: int, at_most: int) -> int:
-    return max(d for d in range(1, min(n, at_most) + 1) if n % d == 0)
-
-
 def _safe_norm(v):
     return jnp.sqrt(jnp.sum(v * v) + 1e-12)
 
@@ -251,7 +247,7 @@ def apply_action(spec: TaskSpec, physics, action):
     v_push = disp / t_push
     v_lift = jnp.asarray([0.0, 0.0, scene.lift_height / t_lift], jnp.float32)
     physics = _scheduled_rollout(cfg, physics, n_push, v_push, v_lift, spec.substeps,
-                                 _largest_divisor(spec.substeps, scene.segment))
+                                 largest_divisor(spec.substeps, scene.segment))
     return set_collider_velocity(physics, PUSHER, jnp.zeros(3))
 
 

@@ -126,6 +126,26 @@ class Box:
                 and bool(np.all((x >= self.low) & (x <= self.high))))
 
 
+def largest_divisor(n: int, at_most: int) -> int:
+    """The largest divisor of ``n`` that is at most ``at_most`` (a segment length)."""
+    return max(d for d in range(1, min(n, at_most) + 1) if n % d == 0)
+
+
+def checkpointed_substeps(body, state, n: int, segment: int):
+    """``state`` after ``body(state, i)`` for substeps ``i = 0 .. n - 1`` (int32): one
+    ``lax.scan`` over segments of ``largest_divisor(n, segment)`` substeps, each wrapped in
+    ``jax.checkpoint``, so reverse-mode memory grows with the number of segments rather
+    than substeps (for an ``apply_action`` that acts on every substep)."""
+    length = largest_divisor(n, segment)
+    idx = jnp.arange(n, dtype=jnp.int32).reshape(n // length, length)
+
+    @jax.checkpoint
+    def seg(s, ii):
+        return jax.lax.scan(lambda c, i: (body(c, i), None), s, ii)[0]
+
+    return jax.lax.scan(lambda s, ii: (seg(s, ii), None), state, idx)[0]
+
+
 def default_observe(defn: TaskDef, spec: TaskSpec, physics):
     pts = defn.object_points(spec, physics)[:: spec.obs_stride]
     return jnp.concatenate([pts.reshape(-1), defn.end_effector(spec, physics)])

@@ -74,7 +74,7 @@ from dax_physics import (
     substep,
 )
 
-from .template import TaskDef, TaskSpec
+from .template import TaskDef, TaskSpec, checkpointed_substeps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,10 +232,6 @@ def _step_time(spec: TaskSpec) -> float:
     return spec.substeps * spec.scene.dt
 
 
-def _largest_divisor(n: int, at_most: int) -> int:
-    return max(d for d in range(1, min(n, at_most) + 1) if n % d == 0)
-
-
 def gripper(spec: TaskSpec, physics):
     """The gripper position [m] (3,): the centroid of the held particles."""
     mask = jnp.asarray(held_mask(spec.scene), physics.x.dtype)
@@ -264,8 +260,6 @@ def apply_action(spec: TaskSpec, physics, action):
     vel = (target - p) / T
     x0 = physics.x
     params = cfg.params
-    n = spec.substeps
-    segment = _largest_divisor(n, scene.segment)
     h3 = held[:, None]
 
     def body(s, i):
@@ -273,14 +267,9 @@ def apply_action(spec: TaskSpec, physics, action):
         moved = x0 + vel * ((i + 1).astype(x0.dtype) * scene.dt)
         return s.replace(x=jnp.where(h3, moved, s.x),
                          v=jnp.where(h3, jnp.broadcast_to(vel, s.v.shape), s.v),
-                         C=jnp.where(held[:, None, None], 0.0, s.C)), None
+                         C=jnp.where(held[:, None, None], 0.0, s.C))
 
-    @jax.checkpoint
-    def seg(s, idx):
-        return jax.lax.scan(body, s, idx)[0]
-
-    idx = jnp.arange(n, dtype=jnp.int32).reshape(n // segment, segment)
-    return jax.lax.scan(lambda s, i: (seg(s, i), None), physics, idx)[0]
+    return checkpointed_substeps(body, physics, spec.substeps, scene.segment)
 
 
 def throw_velocities(spec: TaskSpec) -> np.ndarray:
