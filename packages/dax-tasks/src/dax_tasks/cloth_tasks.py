@@ -133,6 +133,15 @@ def end_effector(spec: TaskSpec, physics):
     return physics.gripper_pos[0]
 
 
+def _fold_states(scene: ClothScene, substeps: int) -> np.ndarray:
+    """(n + 1, V, 3) [m]: the canonical cloth after 0, 1, ..., n - 1 folds of the plan (each
+    fold's own settling), then after all n and ``REST_TIME`` (the fold tasks' goal, the
+    unfold tasks' start)."""
+    n = len(_cloth.fold_plan(scene))
+    return np.stack([_cloth.fold_prefix_vertices(scene, substeps, m) for m in range(n)]
+                    + [_cloth.folded_vertices(scene, substeps)])
+
+
 def _planar_pose(x, ref):
     """The rotation about z (2, 2) and table-plane shift (2,) that best map ``ref`` onto
     ``x`` (least squares, 2-D Kabsch)."""
@@ -152,6 +161,12 @@ def expert_action(spec: TaskSpec, physics, goal_points, t):
     plan = _cloth.fold_plan(scene)
     idx = jnp.asarray([i for i, _ in plan], jnp.int32)
     n = len(plan)
+    # The cloth's rigid pose is fitted on every vertex against the canonical cloth with as
+    # many folds done (physics on the table does not depend on the pose, so the cloth is
+    # that state rotated and shifted). Fitting against the flat cloth on the vertices the
+    # folds leave in place failed from the third fold on: none stays put in every fold,
+    # and the pose fitted before Fold-Cloth-3's last fold was 0.37 rad off.
+    refs = jnp.asarray(_fold_states(scene, spec.substeps), x.dtype)
     if scene.unfold:
         # Undo the folds in reverse (pick the vertex fold j placed, put it where it was
         # before fold j, in the cloth's fitted pose), then pick the vertex farthest from
@@ -161,22 +176,12 @@ def expert_action(spec: TaskSpec, physics, goal_points, t):
         err = jnp.sum((x - goal_points) ** 2, axis=1)
         i = jnp.argmax(err)
         farthest = jnp.concatenate([x[i], goal_points[i]])
-        refs = jnp.asarray(np.stack(
-            [_cloth.fold_prefix_vertices(scene, spec.substeps, m) for m in range(n)]
-            + [_cloth.folded_vertices(scene, spec.substeps)]), x.dtype)
         j = jnp.clip(n - 1 - t, 0, n - 1)  # the fold to undo at step t
         rot, shift = _planar_pose(x, refs[jnp.clip(n - t, 0, n)])
         before = refs[j][idx[j]]
         place = jnp.concatenate([rot @ before[:2] + shift, before[2:]])
         return jnp.where(t < n, jnp.concatenate([x[idx[j]], place]), farthest)
-    k = jnp.minimum(t, len(plan) - 1)
-    # The cloth's rigid pose: fitted on every vertex against the canonical cloth after the
-    # same number of folds (physics on the table does not depend on the pose, so the cloth
-    # is that state rotated and shifted). Fitting against the flat cloth on the vertices
-    # the folds leave in place failed from the third fold on: none stays put in every
-    # fold, and the pose fitted before Fold-Cloth-3's last fold was 0.37 rad off.
-    refs = jnp.asarray(np.stack([_cloth.fold_prefix_vertices(scene, spec.substeps, n)
-                                 for n in range(len(plan))]), x.dtype)
+    k = jnp.minimum(t, n - 1)
     rot, shift = _planar_pose(x, refs[k])
 
     def posed(p):
