@@ -183,5 +183,6 @@ def physics_demo(session: nox.Session) -> None:
     """The physics demo: prints its figures as JSON and writes a picture to demo_out/."""
     _install_local(session, ["dax-physics"], extras={"dax-physics": "plot"})
     session.run(
-        "python", "-m", "dax_physics.demo", "--out", "demo_out", *session.posargs, env=PYTEST_ENV
+        "python", "-m", "dax_physics.tools.demo", "--out", "demo_out", *session.posargs,
+        env=PYTEST_ENV
     )

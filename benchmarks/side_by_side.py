@@ -6,7 +6,7 @@ Runs, interleaved in one process tree so that all engines see the same machine s
   ``cloth_warp.py``) with their own interpreter (``--peers-python``; they need numpy,
   taichi and warp-lang, which DaX must not depend on). They are run as subprocesses and
   only their ``RESULT {json}`` line is read: nothing of theirs is imported here;
-* DaX's own benchmark, ``python -m dax_physics.bench ... --json``, with ``--dax-python``
+* DaX's own benchmark, ``python -m dax_physics.tools.bench ... --json``, with ``--dax-python``
   (default: the interpreter running this script). Its output is the last stdout line
   that starts with ``{``.
 
@@ -151,7 +151,7 @@ def dax_cmd(py: str, scene: dict, substeps: int) -> list[str]:
         return [
             py,
             "-m",
-            "dax_physics.bench",
+            "dax_physics.tools.bench",
             "mpm-block",
             "--material",
             scene["material"],
@@ -166,7 +166,7 @@ def dax_cmd(py: str, scene: dict, substeps: int) -> list[str]:
     return [
         py,
         "-m",
-        "dax_physics.bench",
+        "dax_physics.tools.bench",
         "cloth-drop",
         "--n",
         str(scene["n"]),

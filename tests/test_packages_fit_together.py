@@ -1,13 +1,17 @@
-"""Cross-package checks: the four DaX packages, installed together, fit one another.
+"""Cross-package checks, one parametrised test per property over the four DaX packages:
+each installed copy is the source tree's, fits the siblings it declares, declares only
+lower layers, imports no higher layer, declares exactly the third-party packages its code
+imports, and imports no other package's private names.
 
 Run by `nox -s integration`, which installs all four packages from packages/.
 """
 
+import ast
 import importlib
 import re
 import subprocess
 import sys
-from importlib.metadata import requires, version
+from importlib.metadata import packages_distributions, requires, version
 from pathlib import Path
 
 import pytest
@@ -15,7 +19,7 @@ from packaging.requirements import Requirement
 
 REPO = Path(__file__).resolve().parents[1]
 
-# Distribution name -> import name, lowest layer first (DESIGN.md section 1).
+# Distribution name -> import name, lowest layer first.
 LAYERS = {
     "dax-physics": "dax_physics",
     "dax-tasks": "dax_tasks",
@@ -25,9 +29,24 @@ LAYERS = {
 DISTS = list(LAYERS)
 
 
-def _sibling_requirements(dist: str) -> list[Requirement]:
-    reqs = [Requirement(r) for r in requires(dist) or []]
-    return [r for r in reqs if r.name in LAYERS and r.marker is None]
+def _norm(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _requirements(dist: str) -> list[Requirement]:
+    return [Requirement(r) for r in requires(dist) or []]
+
+
+def _extra(req: Requirement) -> str | None:
+    """The extra a requirement belongs to (None for a core dependency)."""
+    if req.marker is None:
+        return None
+    match = re.search(r'extra\s*==\s*"([^"]+)"', str(req.marker))
+    return match.group(1) if match else None
+
+
+def _siblings(dist: str) -> list[Requirement]:
+    return [r for r in _requirements(dist) if r.name in LAYERS and _extra(r) is None]
 
 
 def _source_version(dist: str) -> str:
@@ -37,57 +56,106 @@ def _source_version(dist: str) -> str:
     return match.group(1)
 
 
+def _sources(dist: str) -> list[Path]:
+    return sorted((REPO / "packages" / dist / "src" / LAYERS[dist]).rglob("*.py"))
+
+
+def _imports(dist: str):
+    """``(module path, line, imported dotted name, names imported from it)`` for every
+    import statement in the package's sources (lazy ones inside functions included)."""
+    src = REPO / "packages" / dist / "src"
+    for path in _sources(dist):
+        tree = ast.parse(path.read_text(), str(path))
+        package = list(path.relative_to(src).with_suffix("").parts[:-1])
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for alias in node.names:
+                    yield path, node.lineno, alias.name, ()
+            elif isinstance(node, ast.ImportFrom):
+                name = node.module or ""
+                if node.level:  # relative: resolve against the module's package
+                    base = package[: len(package) - node.level + 1]
+                    name = ".".join(base + ([node.module] if node.module else []))
+                yield path, node.lineno, name, tuple(a.name for a in node.names)
+
+
 @pytest.mark.parametrize("dist", DISTS)
-def test_package_imports(dist):
+def test_installed_package_is_this_source_tree(dist):
     module = importlib.import_module(LAYERS[dist])
-    assert module.__name__ == LAYERS[dist], (
-        f"expected module {LAYERS[dist]!r}, got {module.__name__!r}"
-    )
-
-
-@pytest.mark.parametrize("dist", DISTS)
-def test_installed_version_equals_version_in_source_tree(dist):
     expected = _source_version(dist)
     assert version(dist) == expected, (
         f"expected installed {dist} {expected} (packages/{dist}/pyproject.toml), "
-        f"got {version(dist)}: the installed copy is stale"
-    )
-
-
-@pytest.mark.parametrize(
-    ("dist", "sibling"),
-    [(d, r.name) for d in DISTS for r in _sibling_requirements(d)],
-)
-def test_declared_sibling_range_admits_installed_sibling(dist, sibling):
-    (req,) = [r for r in _sibling_requirements(dist) if r.name == sibling]
-    installed = version(sibling)
-    assert req.specifier.contains(installed, prereleases=True), (
-        f"expected installed {sibling} within {dist}'s declared range '{req.specifier}', "
-        f"got {installed}"
-    )
+        f"got {version(dist)}: the installed copy is stale")
+    assert module.__version__ == expected, (
+        f"expected {LAYERS[dist]}.__version__ == {expected!r}, got {module.__version__!r}")
 
 
 @pytest.mark.parametrize("dist", DISTS)
-def test_package_depends_only_on_lower_layers(dist):
+def test_declared_siblings_are_lower_layers_whose_installed_versions_fit(dist):
     below = set(DISTS[: DISTS.index(dist)])
-    declared = {r.name for r in _sibling_requirements(dist)}
+    declared = {r.name for r in _siblings(dist)}
     assert declared <= below, (
-        f"expected {dist} to depend only on lower layers {sorted(below)}, got {sorted(declared)}"
-    )
+        f"expected {dist} to depend only on lower layers {sorted(below)}, got {sorted(declared)}")
+    for req in _siblings(dist):
+        installed = version(req.name)
+        assert req.specifier.contains(installed, prereleases=True), (
+            f"expected installed {req.name} within {dist}'s declared range "
+            f"'{req.specifier}', got {installed}")
 
 
 @pytest.mark.parametrize("dist", DISTS)
 def test_importing_package_loads_no_higher_layer(dist):
-    above = [LAYERS[d] for d in DISTS[DISTS.index(dist) + 1 :]]
-    code = (
-        "import sys\n"
-        f"import {LAYERS[dist]}\n"
-        f"print(sorted(m for m in sys.modules if m.split('.')[0] in {above!r}))\n"
-    )
+    above = [LAYERS[d] for d in DISTS[DISTS.index(dist) + 1:]] + (
+        ["gymnasium"] if dist == "dax-tasks" else [])  # only dax_tasks.gym imports it
+    code = (f"import sys\nimport {LAYERS[dist]}\n"
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {above!r}))\n")
     # A fresh interpreter, so modules imported by other tests do not count.
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, (
-        f"expected import {LAYERS[dist]} to succeed, got exit {proc.returncode}:\n{proc.stderr}"
-    )
-    loaded = proc.stdout.strip()
-    assert loaded == "[]", f"expected import {LAYERS[dist]} to load none of {above}, got {loaded}"
+        f"expected import {LAYERS[dist]} to succeed, got exit {proc.returncode}:\n{proc.stderr}")
+    assert proc.stdout.strip() == "[]", (
+        f"expected import {LAYERS[dist]} to load none of {above}, got {proc.stdout.strip()}")
+
+
+@pytest.mark.parametrize("dist", DISTS)
+def test_declared_dependencies_match_the_imports(dist):
+    """Every third-party package the sources import is declared (as a dependency or in an
+    extra other than ``test``), and every declared dependency and extra is imported."""
+    owners = {top: {_norm(d) for d in ds} for top, ds in packages_distributions().items()}
+    owners.update({imp: {dist_name} for dist_name, imp in LAYERS.items()})
+    own = LAYERS[dist]
+    imported = {}
+    for path, line, name, _ in _imports(dist):
+        top = name.split(".")[0]
+        if top == own or top in sys.stdlib_module_names or top == "__future__":
+            continue
+        assert top in owners, f"{path}:{line}: imports {top!r}, which no package provides"
+        for owner in owners[top]:
+            imported.setdefault(owner, f"{path.name}:{line}")
+    declared = {}
+    for req in _requirements(dist):
+        extra = _extra(req)
+        if extra != "test":
+            declared.setdefault(_norm(req.name), extra)
+    undeclared = sorted(set(imported) - set(declared))
+    assert not undeclared, (
+        f"{dist} imports {[(u, imported[u]) for u in undeclared]} without declaring them")
+    unused = sorted(set(declared) - set(imported))
+    assert not unused, (
+        f"{dist} declares {[(u, declared[u] or 'core') for u in unused]} but never imports "
+        f"them (declare a dependency when the code that uses it lands)")
+
+
+@pytest.mark.parametrize("dist", DISTS)
+def test_no_package_imports_another_packages_private_names(dist):
+    own = LAYERS[dist]
+    bad = []
+    for path, line, name, names in _imports(dist):
+        parts = name.split(".")
+        if parts[0] == own or parts[0] not in LAYERS.values():
+            continue
+        private = [p for p in parts[1:] if p.startswith("_")]
+        private += [n for n in names if n.startswith("_")]
+        if private:
+            bad.append(f"{path.relative_to(REPO)}:{line}: {name} {private}")
+    assert not bad, f"{dist} imports private names of other packages: {bad}"

@@ -31,7 +31,8 @@ class ToySpec:
 class ToyTask:
     """A point moved by its action on a smooth Gaussian reward landscape:
     ``p' = p + a``, ``r = exp(-|p' - g|^2 / width)`` with ``g = (0.3, -0.2)``. Same
-    interface as :class:`dax_tasks.Task` (``reset``, ``step``, ``spec``, ``horizon``)."""
+    interface as :class:`dax_tasks.Env` (``reset``, ``step``, ``spec``, ``horizon``,
+    ``default_params``); its params are unused (``None``)."""
 
     def __init__(self, horizon=2, width=0.05, scale=1.0):
         self.spec = ToySpec()
@@ -40,12 +41,13 @@ class ToyTask:
         self.scale = scale
         self.goal = jnp.asarray([0.3, -0.2])
         self.has_expert = False
+        self.default_params = None
 
-    def reset(self, key):
+    def reset(self, key, params=None):
         p = jax.random.uniform(key, (2,), minval=-0.2, maxval=0.2)
         return p, ToyState(p, jnp.zeros((), jnp.int32), jnp.asarray(True))
 
-    def step(self, state, action):
+    def step(self, state, action, params=None):
         p = state.p + action
         d2 = jnp.sum((p - self.goal) ** 2)
         r = self.scale * jnp.exp(-d2 / self.width)

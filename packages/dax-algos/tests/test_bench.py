@@ -16,8 +16,8 @@ def _make_nan(task, config):
     """A broken method: NaN actions (the task's finite flag turns false)."""
     rnd = reference.make_random(task, config)
 
-    def plan(pstate, env_state, key):
-        action, pstate, stats = rnd.plan(pstate, env_state, key)
+    def plan(pstate, env_state, key, params):
+        action, pstate, stats = rnd.plan(pstate, env_state, key, params)
         return action * jnp.nan, pstate, stats
 
     return common.Planner(init=rnd.init, plan=plan)

@@ -26,7 +26,8 @@ def cheap_fold():
 
 def _scores(task, planner, seeds):
     episode = jax.jit(common.make_episode(task, planner))
-    return np.asarray([float(episode(jax.random.PRNGKey(s)).score) for s in seeds])
+    params = task.default_params
+    return np.asarray([float(episode(jax.random.PRNGKey(s), params).score) for s in seeds])
 
 
 def test_cem_mpc_beats_random_on_cheap_cloth(cheap_fold):
@@ -73,14 +74,15 @@ def test_diff_mpc_gradient_needs_contact_adjustment(contact_adjustment):
 
     task = dax_tasks.make("fold_cloth1", cache_goal=False, **cheap_cloth_overrides(
         contact_adjustment=contact_adjustment))
-    _, state = task.reset(jax.random.PRNGKey(0))
+    _, state = jax.jit(task.reset)(jax.random.PRNGKey(0))
     value = common.make_objective(task, "final")
+    params = task.default_params
     z0 = _missing_pick(task)
     pick = common.to_action(task, z0[0])[:2]
     assert float(jnp.min(jnp.linalg.norm(state.physics.x[:, :2] - pick, axis=1))) > 0.03
     cfg = dax_algos.DiffMPCConfig(steps=1, horizon=1)
     _, _, stats = jax.jit(lambda z: diff_mpc.gradient_refine(
-        lambda zz: value(state, zz), z, cfg))(z0)
+        lambda zz: value(state, zz, params), z, cfg))(z0)
     norm = float(stats.grad_norm_max)
     if contact_adjustment:
         assert norm > 1e-4, f"expected a non-zero gradient with contact adjustment, got {norm}"
@@ -147,9 +149,9 @@ def test_episode_is_deterministic_and_vmaps_over_seeds(toy):
                                   diff=dax_algos.DiffMPCConfig(steps=2))
     episode = common.make_episode(toy, diff_cem_mpc.make_planner(toy, cfg))
     keys = jnp.stack([jax.random.PRNGKey(s) for s in (0, 1, 0)])
-    batched = jax.jit(jax.vmap(episode))(keys)
+    batched = jax.jit(jax.vmap(episode, in_axes=(0, None)))(keys, toy.default_params)
     np.testing.assert_array_equal(np.asarray(batched.actions[0]), np.asarray(batched.actions[2]))
     assert not np.allclose(np.asarray(batched.actions[0]), np.asarray(batched.actions[1]))
-    single = jax.jit(episode)(keys[1])
+    single = jax.jit(episode)(keys[1], toy.default_params)
     np.testing.assert_allclose(np.asarray(single.score), np.asarray(batched.score[1]),
                                rtol=1e-5)

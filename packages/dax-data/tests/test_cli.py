@@ -16,7 +16,7 @@ import pytest
 import dax_data
 import dax_tasks
 from dax_data import fileformat as ff
-from dax_tasks import _cloth, goals
+from dax_tasks import goals
 
 TASK = "fold_cloth1"  # cheap, with an expert; default (full) resolution
 _SCRIPT = Path(sys.executable).with_name("dax-data")
@@ -137,7 +137,7 @@ def test_export_writes_cloth_triangles_and_points(env, demo, tmp_path):
     import meshio
 
     ep = read_all(demo)[1]
-    faces = _cloth.rest_vertices(dax_tasks.get_spec(TASK).scene)[1]
+    faces = dax_tasks.make(TASK).object_faces
     for fmt in ("vtu", "xdmf", "ply"):
         out = tmp_path / fmt
         proc = run(env, "export", demo, "--episode", 1, "--format", fmt, "--out", out)
@@ -156,7 +156,7 @@ def test_goals_are_written_where_tasks_read_them(env, tmp_path, monkeypatch):
     spec = dax_tasks.get_spec(TASK)
     path = goals.goal_file(spec, tmp_path / "goals")
     assert path.is_file(), f"expected {path}; got {sorted((tmp_path / 'goals').iterdir())}"
-    expected = goals.compute_goal(dax_tasks.get_definition(TASK), spec)
+    expected = goals.compute_goal(dax_tasks.env_class(TASK)(spec))
     task = dax_tasks.make(TASK, goal_path=path)
     np.testing.assert_array_equal(task.goal, expected)
     assert "dax-data" in task.goal_provenance["method"]

@@ -39,8 +39,12 @@ def test_file_records_spec_versions_units_and_goal(cloth):
     path, _ = cloth
     with dax_data.open_file(path) as f:
         meta = f.meta
-        assert meta["spec"]["scene_class"] == "dax_tasks._cloth.ClothScene"
-        assert meta["spec"]["lam"] == 10.0 and meta["spec"]["scene"]["n"] == 11
+        assert meta["spec"]["scene_type"] == "ClothScene" and meta["spec"]["scene"]["n"] == 11
+        assert "dax_tasks" not in json.dumps(meta["spec"]), "a module path in the spec"
+        assert meta["fingerprint"] == make_task("fold_cloth1").spec.fingerprint()
+        assert meta["params"]["lam"] == 10.0 and meta["params"]["aux_weight"] == 0.0
+        assert meta["params"]["physics"]["stretch"] == 10.0
+        assert ff.spec_from_meta(meta) == make_task("fold_cloth1").spec
         assert {"dax-data", "dax-tasks", "dax-physics", "jax", "h5py"} <= set(meta["versions"])
         assert meta["units"]["points"] == "m" and "dt" in meta["scene_doc"]
         assert meta["generator"] == {"task": "fold_cloth1", "seed": 3, "policy": "expert",
@@ -146,3 +150,34 @@ def test_generate_with_more_episodes_extends_the_file_keeping_earlier_ones(tmp_p
     assert again["recorded_now"] == 0
     with pytest.raises(dax_data.DataFileError, match="already holds 2 episodes"):
         dax_data.generate("fold_cloth1", 1, 7, path, policy="random", progress=False)
+
+
+def _as_version_1(path):
+    """Rewrite a file's header the way format version 1 wrote it: the spec with lam and
+    aux_reward and the scene class's module path (and a scene field that became a
+    param), no params attribute."""
+    with h5py.File(path, "a") as f:
+        spec = json.loads(f.attrs["spec"])
+        spec.pop("scene_type")
+        spec.update(lam=10.0, aux_reward=False, scene_class="dax_tasks._cloth.ClothScene")
+        spec["scene"]["stretch"] = 10.0
+        f.attrs["spec"] = json.dumps(spec)
+        f.attrs["format_version"] = 1
+        del f.attrs["params"]
+
+
+def test_version_1_files_are_read_but_not_extended(cloth, tmp_path):
+    path = tmp_path / "v1.h5"
+    path.write_bytes(cloth[0].read_bytes())
+    _as_version_1(path)
+    with dax_data.open_file(path) as f:
+        assert f.meta["format_version"] == 1 and len(f) == 2
+        assert ff.spec_from_meta(f.meta) == make_task("fold_cloth1").spec
+        f.verify()
+    with pytest.raises(dax_data.DataFileError, match="format version 1"):
+        dax_data.generate("fold_cloth1", 3, 3, path, progress=False)
+    assert len(dax_data.open_file(path)) == 2, "the refused run changed the file"
+    with h5py.File(path, "a") as f:
+        f.attrs["format_version"] = 2  # a version 2 file must have params
+    with pytest.raises(dax_data.DataFileError, match="missing file attribute 'params'"):
+        dax_data.open_file(path)

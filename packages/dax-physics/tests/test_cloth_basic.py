@@ -15,7 +15,7 @@ PEERS_MEAN_HEIGHT = 0.008108
 
 def test_grid_cloth_drop_matches_the_peer_reference():
     cfg, cloth, state = C.cloth_drop_scene(64)
-    out = jax.jit(lambda c, s: C.grid_simulate(cfg, c, s, 1000))(cloth, state)
+    out = jax.jit(lambda c, s: C.grid_rollout(cfg, c, s, 1000))(cloth, state)
     got = float(np.asarray(out.x[2]).mean())
     assert abs(got - PEERS_MEAN_HEIGHT) < 1e-4, f"expected {PEERS_MEAN_HEIGHT}, got {got}"
     assert float(np.asarray(out.x[2]).min()) >= 0.0, "a vertex went below the ground clamp"
@@ -40,13 +40,13 @@ def test_mesh_cloth_refuses_an_unstable_substep(small_cloth):
     cfg, cl = small_cloth
     bad = C.ClothConfig(dt=10 * C.max_stable_dt(cfg, cl), table_height=0.0)
     with pytest.raises(ValueError, match="largest stable dt"):
-        C.simulate(bad, cl, C.ClothState.create(cl), 10)
+        C.rollout(bad, cl, C.ClothState.create(cl), 10)
 
 
 def test_dropped_cloth_comes_to_rest_flat_on_the_table(small_cloth):
     cfg, cl = small_cloth
     state = C.ClothState.create(cl)
-    out = jax.jit(lambda s: C.simulate(cfg, cl, s, 3000))(state)
+    out = jax.jit(lambda s: C.rollout(cfg, cl, s, 3000))(state)
     z = np.asarray(out.x[:, 2])
     speed = float(np.abs(np.asarray(out.v)).max())
     assert np.all(np.abs(z) < 1e-3), (
@@ -61,10 +61,10 @@ def test_cloth_rollout_is_deterministic_and_vmaps_like_a_loop(small_cloth):
     cfg, cl = small_cloth
     s0 = C.ClothState.create(cl)
     states = [s0.replace(x=s0.x + jnp.asarray([0.0, 0.0, dz])) for dz in (0.0, 0.01)]
-    run = jax.jit(lambda s: C.simulate(cfg, cl, s, 200))
+    run = jax.jit(lambda s: C.rollout(cfg, cl, s, 200))
     loop = [np.asarray(run(s).x) for s in states]
     batch = jax.tree.map(lambda *a: jnp.stack(a), *states)
-    vm = np.asarray(jax.jit(jax.vmap(lambda s: C.simulate(cfg, cl, s, 200)))(batch).x)
+    vm = np.asarray(jax.jit(jax.vmap(lambda s: C.rollout(cfg, cl, s, 200)))(batch).x)
     np.testing.assert_allclose(vm, np.stack(loop), atol=1e-6)
     np.testing.assert_array_equal(np.asarray(run(states[0]).x), loop[0])
 

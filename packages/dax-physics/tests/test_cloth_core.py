@@ -40,8 +40,8 @@ def test_grid_stencil_path_matches_general_mesh_solver():
     gcfg, gcloth, gstate, cl = _peers_like_cloth(n)
     cfg = c.ClothConfig(dt=gcfg.dt, gravity=gcfg.gravity, table_height=0.0)
     st = c.ClothState.create(cl)
-    got = jax.jit(lambda s: c.simulate(cfg, cl, s, steps))(st).x
-    want = c.grid.to_vertices(jax.jit(lambda s: c.grid_simulate(gcfg, gcloth, s, steps))(
+    got = jax.jit(lambda s: c.rollout(cfg, cl, s, steps))(st).x
+    want = c.grid.to_vertices(jax.jit(lambda s: c.grid_rollout(gcfg, gcloth, s, steps))(
         gstate).x)
     err = float(jnp.max(jnp.abs(got - want)))
     assert err < 2e-6, f"expected grid and mesh solvers to agree to 2e-6 m, got max diff {err}"
@@ -49,7 +49,7 @@ def test_grid_stencil_path_matches_general_mesh_solver():
 
 def test_cloth_drop_scene_reaches_reference_mean_height():
     cfg, cloth, state = c.cloth_drop_scene(64)
-    out = jax.jit(lambda s: c.grid_simulate(cfg, cloth, s, 1000))(state)
+    out = jax.jit(lambda s: c.grid_rollout(cfg, cloth, s, 1000))(state)
     h = float(jnp.mean(out.x[2]))
     assert abs(h - 0.008108) < 1e-4, f"expected mean height 0.008108 +- 1e-4 m, got {h}"
 
@@ -59,7 +59,7 @@ def test_unstable_dt_is_refused_with_largest_stable_dt():
     dtmax = c.max_stable_dt(c.ClothConfig(), cl)
     cfg = c.ClothConfig(dt=2 * dtmax)
     with pytest.raises(ValueError, match=f"largest stable dt is {dtmax:.4g}"):
-        c.simulate(cfg, cl, c.ClothState.create(cl), 10)
+        c.rollout(cfg, cl, c.ClothState.create(cl), 10)
     with pytest.raises(ValueError, match="largest stable dt"):
         c.GridClothConfig(n=8, m=8, dt=1e-3, mass=1e-4).check_stable()
     # the bound is real: at the bound a perturbed cloth stays bounded, far above it explodes
@@ -97,7 +97,7 @@ def test_pinned_cloth_sag_is_static_converges_and_energy_does_not_grow():
     for n in (7, 13, 25):
         cfg, cl, st, mid = _curtain(n)
         k = int(0.25 / cfg.dt)
-        run = jax.jit(lambda s, cfg=cfg, cl=cl, k=k: c.simulate(cfg, cl, s, k))
+        run = jax.jit(lambda s, cfg=cfg, cl=cl, k=k: c.rollout(cfg, cl, s, k))
         energies = [float(c.energy(cfg, cl, st))]
         for _ in range(8):  # 2 s
             st = run(st)
@@ -116,7 +116,7 @@ def test_pinned_cloth_sag_is_static_converges_and_energy_does_not_grow():
 def test_dropped_cloth_comes_to_rest_flat_on_table():
     cl = c.square_cloth(10, size=(0.3, 0.3), height=0.05, stretch=50.0, damping=0.02)
     cfg = c.ClothConfig(dt=2e-4, friction_static=0.5, air_drag=0.5)
-    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 5000))(c.ClothState.create(cl))
+    out = jax.jit(lambda s: c.rollout(cfg, cl, s, 5000))(c.ClothState.create(cl))
     z = np.asarray(out.x[:, 2])
     vmax = float(jnp.max(jnp.abs(out.v)))
     assert z.min() >= 0.0 and z.max() < 1e-4, f"expected z in [0, 1e-4] m, got [{z.min()}, " \
@@ -134,7 +134,7 @@ def test_table_friction_holds_below_and_slides_above_threshold(ratio):
     cfg = c.ClothConfig(dt=2e-4, gravity=(ax, 0.0, -g), friction_static=mu_s,
                         friction_dynamic=mu_d)
     T = 0.5
-    out = jax.jit(lambda s: c.simulate(cfg, cl, s, int(T / cfg.dt)))(c.ClothState.create(cl))
+    out = jax.jit(lambda s: c.rollout(cfg, cl, s, int(T / cfg.dt)))(c.ClothState.create(cl))
     dx = float(jnp.mean(out.x[:, 0] - cl.rest_pos[:, 0]))
     if ratio < 1:
         assert abs(dx) < 1e-6, f"expected the cloth to stick (dx = 0), got dx = {dx} m"
@@ -179,7 +179,7 @@ def test_cloth_drapes_over_sphere_collider():
     spec = ColliderSpec("sphere", (0.08,), mode="separate", friction=0.5)
     cfg = c.ClothConfig(dt=2e-4, colliders=(spec,), air_drag=0.5)
     st = c.ClothState.create(cl, colliders=ColliderState.create([0.0, 0.0, 0.0]))
-    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 3000))(st)
+    out = jax.jit(lambda s: c.rollout(cfg, cl, s, 3000))(st)
     r = np.linalg.norm(np.asarray(out.x), axis=1)
     zc = float(out.x[np.argmin(np.linalg.norm(np.asarray(out.x[:, :2]), axis=1)), 2])
     assert r.min() > 0.08 - 0.005, f"expected no vertex deep inside the sphere, got r {r.min()}"
@@ -198,7 +198,7 @@ def test_tshirt_mesh_is_valid_with_sleeves_and_simulates():
                                               f"{width} vs {np.ptp(body[:, 0])}"
     cl = c.tshirt_cloth(spacing=0.03, height=0.02, stretch=50.0)
     cfg = c.ClothConfig(dt=2e-4)
-    out = jax.jit(lambda s: c.simulate(cfg, cl, s, 500))(c.ClothState.create(cl))
+    out = jax.jit(lambda s: c.rollout(cfg, cl, s, 500))(c.ClothState.create(cl))
     assert bool(jnp.all(jnp.isfinite(out.x))), "expected finite positions, got NaN/inf"
 
 
@@ -249,7 +249,7 @@ def test_pick_with_nothing_in_reach_is_a_noop_and_snap_always_grasps():
                      settle_steps=20, radius=0.01, snap=False)
     far = jnp.array([0.5, 0.5, 0.0])
     out = c.pick_and_place(cfg, cl, st, far, jnp.array([0.1, 0.1, 0.0]), sc)
-    ref = c.simulate(cfg, cl, st, sc.n_steps)
+    ref = c.rollout(cfg, cl, st, sc.n_steps)
     diff = float(jnp.max(jnp.abs(out.x - ref.x)))
     assert diff == 0.0, f"expected an untouched cloth (diff 0), got {diff}"
     snapped = c.grasp(st, 0, far, 0.01, snap=True)
@@ -264,7 +264,7 @@ def test_several_grippers_hold_different_vertices():
     st = c.grasp(st, 0, (0.0, 0.0, 0.0), 0.01)
     st = c.grasp(st, 1, (0.2, 0.0, 0.0), 0.01)
     st = st.replace(gripper_vel=jnp.array([[0.0, 0.0, 0.1], [0.0, 0.0, -0.1]]))
-    out = c.simulate(cfg, cl, st, 1000)
+    out = c.rollout(cfg, cl, st, 1000)
     got = (float(out.x[0, 2]), float(out.x[20, 2]))
     assert abs(got[0] - 0.02) < 1e-5 and abs(got[1] + 0.02) < 1e-5, \
         f"expected held corners at z = (0.02, -0.02) m, got {got}"

@@ -87,7 +87,7 @@ def test_checkpointed_rollout_gives_identical_values_and_gradients():
 
     def loss(v, seg):
         gv = jnp.broadcast_to(v, (300, 1, 3))
-        out = c.simulate(cfg, cl, st, 300, gv, checkpoint_every=seg)
+        out = c.rollout(cfg, cl, st, 300, gv, segment=seg)
         return jnp.sum(out.x[:, 2] ** 2) + jnp.sum(out.x[:, 0])
     v0 = jnp.array([0.05, 0.05, 0.1])
     l1, g1 = jax.jit(jax.value_and_grad(lambda v: loss(v, None)))(v0)
@@ -132,7 +132,7 @@ def test_nan_pick_or_place_in_macro_is_a_noop_under_jit(bad):
     ok = jnp.array([0.05, 0.05, 0.02])
     pick, place = (nan, ok) if bad == "pick" else (jnp.zeros(3), nan)
     out = jax.jit(lambda p, q: c.pick_and_place(cfg, cl, st, p, q, sc))(pick, place)
-    ref = c.simulate(cfg, cl, st, sc.n_steps)
+    ref = c.rollout(cfg, cl, st, sc.n_steps)
     assert bool(jnp.all(jnp.isfinite(out.x))), "expected finite positions, got NaN"
     diff = float(jnp.max(jnp.abs(out.x - ref.x)))
     assert diff < 1e-7, f"expected an untouched cloth, got max diff {diff}"

@@ -24,7 +24,7 @@ def trace(cfg, params, state, n, probe):
     every substep (stacked along axis 0)."""
 
     def body(s, _):
-        s = mpm.substep(cfg, params, s)
+        s = mpm.step(cfg, params, s)
         return s, probe(cfg, params, s)
 
     return jax.lax.scan(body, state, None, length=n)

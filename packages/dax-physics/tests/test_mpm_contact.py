@@ -19,7 +19,7 @@ def _com_trace(cfg, params, state, n):
     """Final state and the particles' mean position after each of ``n`` substeps."""
 
     def body(s, _):
-        s = mpm.substep(cfg, params, s)
+        s = mpm.step(cfg, params, s)
         return s, jnp.mean(s.x, axis=0)
 
     return jax.lax.scan(body, state, None, length=n)

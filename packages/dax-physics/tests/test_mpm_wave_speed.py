@@ -38,7 +38,7 @@ def _mode_amplitude(cfg, params, state, n):
     shape = state.v[:, 0] / V0
 
     def body(s, _):
-        s = mpm.substep(cfg, params, s)
+        s = mpm.step(cfg, params, s)
         return s, jnp.sum(shape * s.v[:, 0]) / jnp.sum(shape * shape)
 
     return jax.lax.scan(body, state, None, length=n)

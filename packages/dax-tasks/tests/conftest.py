@@ -1,6 +1,7 @@
-"""Shared, module-independent fixtures: a small Push-Rope (50 substeps per action, of which
-10 lift) so that compiled steps are cheap; each fixture compiles once per session. Also the
-determinism check every particle task runs."""
+"""Shared fixtures: a small Push-Rope (50 substeps per action, of which 10 lift) so that
+compiled steps are cheap; each fixture compiles once per session. ``Jitted`` gives a pure
+env jitted ``reset``/``step``/``expert_action`` for eager test code. Also the determinism
+check every particle task runs."""
 
 import dataclasses
 
@@ -10,16 +11,36 @@ import pytest
 
 import dax_tasks
 from dax_tasks import push_rope
+from dax_tasks.wrappers import VmapWrapper
 
 
 def small_overrides(**extra):
-    scene = dataclasses.replace(push_rope.PUSH_ROPE.spec.scene, lift_substeps=10)
+    scene = dataclasses.replace(push_rope.PUSH_ROPE.scene, lift_substeps=10)
     return dict(substeps=50, scene=scene, **extra)
+
+
+class Jitted:
+    """``env``'s pure functions, jitted (params default to the env's), for eager tests;
+    ``batch_size`` wraps the env in a :class:`VmapWrapper` first."""
+
+    def __init__(self, env, batch_size=None):
+        if batch_size is not None:
+            env = VmapWrapper(env, batch_size=batch_size)
+        self.env = env
+        self.reset = jax.jit(lambda key, params=None: env.reset(key, params))
+        self.step = jax.jit(lambda state, action, params=None: env.step(state, action, params))
+        self.expert_action = jax.jit(
+            lambda state, params=None: env.expert_action(state, params))
+
+    def __getattr__(self, name):
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
 
 
 @pytest.fixture(scope="session")
 def task():
-    return dax_tasks.make("push_rope", **small_overrides())
+    return Jitted(dax_tasks.make("push_rope", **small_overrides()))
 
 
 @pytest.fixture(scope="session")
@@ -29,7 +50,7 @@ def reset0(task):
 
 @pytest.fixture(scope="session")
 def expert(task):
-    return jax.jit(lambda s: push_rope.expert_action(task.spec, s.physics, s.goal))
+    return task.expert_action
 
 
 def _same_seed_same_trajectory(task, policy, steps=2):

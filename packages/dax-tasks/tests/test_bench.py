@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from dax_tasks import bench
+from dax_tasks.tools import bench
 
 
 def test_bench_reports_every_figure(capsys):
@@ -13,7 +13,8 @@ def test_bench_reports_every_figure(capsys):
     assert lines == records and len(records) == 1
     rec = records[0]
     assert rec["task"] == "fold_cloth1" and rec["object_points"] == 121
-    assert rec["substeps"] > 0 and rec["scene_dt"] > 0
+    assert rec["substeps"] == 700 and rec["scene_dt"] == 1e-3
+    assert rec["sim_time_per_step_s"] == 0.7
     assert [b["batch"] for b in rec["batches"]] == [1, 2]
     for b in rec["batches"]:
         for key in ("reset_s", "step_s", "per_env_step_s", "step_grad_s", "compile_reset_s",

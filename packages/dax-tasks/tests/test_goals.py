@@ -19,54 +19,84 @@ def cache(tmp_path, monkeypatch):
 def _spec(**extra):
     import dataclasses
 
-    return dataclasses.replace(push_rope.PUSH_ROPE.spec, **small_overrides(**extra))
+    return dataclasses.replace(push_rope.PUSH_ROPE, **small_overrides(**extra))
 
 
-def test_goal_is_computed_then_cached_with_provenance(cache):
-    spec = _spec()
-    pts, prov = goals.resolve_goal(push_rope.PUSH_ROPE, spec)
-    path = goals.goal_file(spec)
+@pytest.fixture(scope="module")
+def env():
+    return push_rope.PushRope(_spec())
+
+
+@pytest.fixture(scope="module")
+def goal(env):
+    return env.canonical_goal()
+
+
+def test_goal_is_computed_then_cached_with_provenance(cache, env):
+    pts, prov = goals.resolve_goal(env)
+    path = goals.goal_file(env.spec)
     assert path.parent == cache and path.is_file(), f"expected a cached goal at {path}"
-    again, prov2 = goals.load_goal(path, spec, pts.shape[0])
+    again, prov2 = goals.load_goal(path, env.spec, pts.shape[0])
     np.testing.assert_array_equal(pts, again)
-    assert prov2["task"] == "push_rope" and prov2["fingerprint"] == goals.fingerprint(spec)
+    assert prov2["task"] == "push_rope" and prov2["fingerprint"] == env.spec.fingerprint()
     assert list(cache.glob("*.tmp")) == [], "a temporary file was left behind"
 
 
-def test_cached_goal_is_used_instead_of_recomputing(cache):
-    spec = _spec()
-    pts, _ = goals.resolve_goal(push_rope.PUSH_ROPE, spec)
+def test_cached_goal_is_used_instead_of_recomputing(cache, env):
+    pts, _ = goals.resolve_goal(env)
     moved = pts + np.float32(0.01)
-    goals.save_goal(goals.goal_file(spec), moved, goals.provenance(spec, "test"))
-    got, prov = goals.resolve_goal(push_rope.PUSH_ROPE, spec)
+    goals.save_goal(goals.goal_file(env.spec), moved, goals.provenance(env.spec, "test"))
+    got, prov = goals.resolve_goal(env)
     np.testing.assert_array_equal(got, moved)
     assert prov["method"] == "test"
 
 
-def test_fingerprint_ignores_reward_fields_but_not_the_scene():
-    base = _spec()
-    assert goals.fingerprint(base) == goals.fingerprint(_spec(lam=5.0, aux_reward=True))
+def test_fingerprint_covers_every_spec_field_and_the_code(monkeypatch):
     import dataclasses
 
+    from dax_tasks import spec as spec_module
+
+    base = _spec()
+    assert base.fingerprint() == _spec().fingerprint()
     finer = dataclasses.replace(base, scene=dataclasses.replace(base.scene, ppc=4))
-    assert goals.fingerprint(base) != goals.fingerprint(finer)
+    # the horizon counts too: Whip-Rope's goal is the throw over the whole horizon
+    for other in (finer, dataclasses.replace(base, horizon=3),
+                  dataclasses.replace(base, obs_stride=2)):
+        assert base.fingerprint() != other.fingerprint(), other
+    before = base.fingerprint()
+    monkeypatch.setattr(spec_module, "code_digest", lambda: "other code")
+    assert base.fingerprint() != before, "the fingerprint ignores the source code"
 
 
-def test_make_uses_an_explicit_goal_path(cache, tmp_path):
+def test_spec_round_trips_through_json_without_module_paths():
+    import json as _json
+
+    for name in dax_tasks.TASKS:
+        spec = dax_tasks.get_spec(name)
+        data = _json.loads(_json.dumps(spec.to_json()))
+        assert "dax_tasks" not in _json.dumps(data), f"{name}: a module path in {data}"
+        back = dax_tasks.TaskSpec.from_json(data)
+        assert back == spec and back.fingerprint() == spec.fingerprint(), name
+    data = _spec().to_json()
+    data["scene"]["dx_typo"] = 1.0
+    with pytest.raises(ValueError, match="dx_typo"):
+        dax_tasks.TaskSpec.from_json(data)
+
+
+def test_make_uses_an_explicit_goal_path(cache, tmp_path, goal):
     spec = _spec()
-    pts = push_rope.goal(spec) + np.float32(0.02)
+    pts = goal + np.float32(0.02)
     path = goals.save_goal(tmp_path / "mine.npz", pts, goals.provenance(spec, "by hand"))
-    task = dax_tasks.make("push_rope", goal_path=path, **small_overrides())
-    _, state = task.reset()
-    np.testing.assert_allclose(np.asarray(state.goal), pts)
-    assert task.goal_provenance["method"] == "by hand"
+    env = dax_tasks.make("push_rope", goal_path=path, **small_overrides())
+    np.testing.assert_allclose(np.asarray(env.default_params.goal), pts)
+    assert env.goal_provenance["method"] == "by hand"
 
 
 @pytest.mark.parametrize("damage", ["truncate", "garbage", "wrong_shape", "missing"])
-def test_bad_goal_file_is_refused_with_the_file_named(tmp_path, damage):
+def test_bad_goal_file_is_refused_with_the_file_named(tmp_path, damage, goal):
     spec = _spec()
     path = tmp_path / "goal.npz"
-    good = push_rope.goal(spec)
+    good = goal
     goals.save_goal(path, good, goals.provenance(spec, "test"))
     if damage == "truncate":
         path.write_bytes(path.read_bytes()[:100])
@@ -81,28 +111,26 @@ def test_bad_goal_file_is_refused_with_the_file_named(tmp_path, damage):
     assert str(path) in str(err.value), f"error does not name the file: {err.value}"
 
 
-def test_goal_of_another_task_is_refused(tmp_path):
+def test_goal_of_another_task_is_refused(tmp_path, goal):
     spec = _spec()
     prov = goals.provenance(spec, "test")
     prov["task"] = "fold_cloth1"
-    path = goals.save_goal(tmp_path / "g.npz", push_rope.goal(spec), prov)
+    path = goals.save_goal(tmp_path / "g.npz", goal, prov)
     with pytest.raises(goals.GoalFileError, match="fold_cloth1"):
         goals.load_goal(path, spec)
 
 
-def test_corrupted_cache_file_is_regenerated_with_a_warning(cache):
-    spec = _spec()
-    path = goals.goal_file(spec)
+def test_corrupted_cache_file_is_regenerated_with_a_warning(cache, env):
+    path = goals.goal_file(env.spec)
     path.parent.mkdir(parents=True)
     path.write_bytes(b"\x00" * 10)
     with pytest.warns(UserWarning, match="regenerating"):
-        pts, _ = goals.resolve_goal(push_rope.PUSH_ROPE, spec)
+        pts, _ = goals.resolve_goal(env)
     np.testing.assert_array_equal(goals.load_goal(path)[0], pts)
 
 
-def test_goal_files_hold_no_pickled_objects(cache):
-    spec = _spec()
-    goals.resolve_goal(push_rope.PUSH_ROPE, spec)
-    with np.load(goals.goal_file(spec), allow_pickle=False) as data:
+def test_goal_files_hold_no_pickled_objects(cache, env):
+    goals.resolve_goal(env)
+    with np.load(goals.goal_file(env.spec), allow_pickle=False) as data:
         assert sorted(data.files) == ["points", "provenance"]
         json.loads(str(data["provenance"]))

@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import dax_tasks
-from dax_tasks.gym_envs import GYM_IDS
+from dax_tasks.gym import GYM_IDS
 
 
 def test_all_nine_ids_registered():
@@ -19,12 +19,14 @@ def test_all_nine_ids_registered():
 
 
 # one per kind of action: pick-and-place (fold / unfold), velocity (whip), velocity and
-# wrist rotation (pour), push (push_rope)
-@pytest.mark.parametrize("env_id", ["dax/FoldCloth1-v0", "dax/UnfoldCloth1-v0",
-                                    "dax/WhipRope-v0", "dax/PourWater-v0",
-                                    "dax/PushRope-v0"])
-def test_check_env_passes(env_id):
-    env = gym.make(env_id, render_mode="rgb_array")
+# wrist rotation (pour), push (push_rope); and the image observation modes
+@pytest.mark.parametrize("env_id, kwargs", [
+    ("dax/FoldCloth1-v0", {}), ("dax/UnfoldCloth1-v0", {}), ("dax/WhipRope-v0", {}),
+    ("dax/PourWater-v0", {}), ("dax/PushRope-v0", {}),
+    ("dax/FoldCloth1-v0", {"obs_mode": "rgb", "image_size": 32}),
+    ("dax/FoldTShirt-v0", {"obs_mode": "rgbd", "image_size": 32})])
+def test_check_env_passes(env_id, kwargs):
+    env = gym.make(env_id, render_mode="rgb_array", **kwargs)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*infinity.*")  # positions are unbounded
         # a recommendation for RL libraries: our bounds are in physical units (m/s, m)
@@ -101,10 +103,11 @@ def test_vector_env_steps_the_batch_and_autoresets():
 
 
 def test_make_kwargs_pass_through_to_dax_tasks_make():
-    env = gym.make("dax/FoldCloth1-v0", seed=3, horizon=2, aux_reward=True)
+    env = gym.make("dax/FoldCloth1-v0", seed=3, horizon=2, aux_weight=1.0)
     task = env.unwrapped.task
-    assert task.seed == 3 and task.spec.horizon == 2 and task.spec.aux_reward
-    with pytest.raises(ValueError, match="unknown TaskSpec override"):
+    assert env.unwrapped.seed == 3 and task.spec.horizon == 2
+    assert float(task.default_params.aux_weight) == 1.0
+    with pytest.raises(ValueError, match="unknown override"):
         gym.make("dax/FoldCloth1-v0", horizon_steps=2)
     first = [gym.make("dax/FoldCloth1-v0", seed=s).reset()[0] for s in (3, 3, 4)]
     np.testing.assert_array_equal(first[0], first[1])  # make's seed drives the first reset
@@ -116,3 +119,17 @@ def test_ids_of_unimplemented_tasks_raise_not_implemented():
     for name in missing:
         with pytest.raises(NotImplementedError, match="not implemented"):
             gym.make(GYM_IDS[name])
+
+
+def test_importing_dax_tasks_does_not_import_gymnasium_but_registers_the_ids():
+    import subprocess
+    import sys
+
+    code = ("import sys, dax_tasks; assert 'gymnasium' not in sys.modules, 'imported'; "
+            "import gymnasium; print(gymnasium.spec('dax/PushRope-v0').entry_point)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "dax_tasks.gym:DaxEnv", out.stdout
+    code = "import gymnasium, dax_tasks; print('dax/WhipRope-v0' in gymnasium.registry)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "True", out.stderr

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import small_overrides
+from conftest import Jitted
 
 import dax_tasks
 from dax_tasks import push_rope
@@ -16,15 +16,15 @@ FAR = np.asarray([0.5, 0.5, 0.1, 0.5, 0.5, 0.1], np.float32)  # a zero-length pu
 
 
 @pytest.fixture(scope="module")
-def batched():
-    return dax_tasks.make("push_rope", batch_size=2, **small_overrides())
+def batched(task):
+    return Jitted(task.env, batch_size=2)
 
 
 @pytest.fixture(scope="module")
 def grad_fn(task):
     def r_gt(x, action, state):
         state = state.replace(physics=state.physics.replace(x=x))
-        return task._step_one(state, action)[4]["r_gt"]
+        return task.env.step(state, action)[4]["r_gt"]
 
     return jax.jit(jax.grad(r_gt, argnums=(0, 1)))
 
@@ -33,8 +33,8 @@ def test_reset_gives_observation_in_space_and_valid_state(task, reset0):
     obs, state = reset0
     assert obs.shape == task.observation_space.shape, f"got obs shape {obs.shape}"
     assert int(state.t) == 0 and bool(state.finite)
-    assert state.physics.x.shape == state.goal.shape, (
-        f"particles {state.physics.x.shape} vs goal {state.goal.shape}")
+    assert state.physics.x.shape == task.goal.shape, (
+        f"particles {state.physics.x.shape} vs goal {task.goal.shape}")
     n = state.physics.x.shape[0]
     assert 300 <= n <= 800, f"expected 300-800 rope particles, got {n}"
 
@@ -63,9 +63,8 @@ def test_nan_action_under_jit_marks_info_not_finite(task, reset0):
     _, state = reset0
     bad = FAR.copy()
     bad[0] = np.nan
-    # task._step is the jitted step that task.step calls after its eager checks, i.e. what
-    # runs inside a user's jit, where values cannot be inspected.
-    *_, info = task._step(state, jnp.asarray(bad))
+    # the pure step under jit, where values cannot be inspected
+    *_, info = task.step(state, jnp.asarray(bad))
     assert not bool(info["finite"]), f"expected info['finite'] False, got {info['finite']}"
 
 
@@ -73,9 +72,9 @@ def test_batched_reset_and_step_match_single_envs(task, batched):
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
     obs, state = batched.reset(keys)
     assert obs.shape == (2, *task.observation_space.shape)
-    assert batched.action_space.shape == (2, 6)
-    acts = np.stack([FAR, np.asarray(push_rope.expert_action(
-        task.spec, jax.tree_util.tree_map(lambda v: v[1], state).physics, state.goal[1]))])
+    assert batched.batch_size == 2 and batched.action_space.shape == (6,)
+    acts = np.stack([FAR, np.asarray(task.expert_action(
+        jax.tree_util.tree_map(lambda v: v[1], state)))])
     _, new, reward, done, info = batched.step(state, acts)
     assert reward.shape == (2,) and done.shape == (2,)
     for i in range(2):
@@ -111,9 +110,9 @@ def test_contact_adjustment_moves_push_start_onto_rope(task, reset0):
     _, state = reset0
     x = state.physics.x
     raw = jnp.asarray([0.2, 0.2, 0.08, 0.3, 0.2, 0.08])
-    on = push_rope.push_start(task.spec, state.physics, raw)
-    off = push_rope.push_start(dataclasses.replace(task.spec, contact_adjustment=False),
-                               state.physics, raw)
+    on = task.env.push_start(state.physics, raw)
+    off = push_rope.PushRope(dataclasses.replace(task.spec, contact_adjustment=False)
+                             ).push_start(state.physics, raw)
     np.testing.assert_array_equal(np.asarray(off), np.asarray(raw[:3]))
     scene = task.spec.scene
     gap = float(jnp.min(jnp.linalg.norm(x[:, :2] - on[:2], axis=1)))
@@ -123,21 +122,19 @@ def test_contact_adjustment_moves_push_start_onto_rope(task, reset0):
     assert float(on[2]) <= float(jnp.max(x[:, 2])) + 1e-6, "tip height was not lowered"
 
 
-def test_aux_reward_option_adds_end_effector_term():
-    task = dax_tasks.make("push_rope", **small_overrides(aux_reward=True))
-    assert task.spec.aux_reward
-    _, state = task.reset(jax.random.PRNGKey(0))
-    _, _, reward, _, info = task.step(state, FAR)
+def test_aux_weight_adds_end_effector_term(task, reset0):
+    params = task.default_params.replace(aux_weight=1.0)
+    _, state = reset0
+    _, _, reward, _, info = task.step(state, FAR, params)
     want = float(info["r_gt"]) + float(info["r_aux"])
     assert float(reward) == pytest.approx(want, rel=1e-6), f"expected {want}, got {reward}"
     assert 0.0 < float(info["r_aux"]) <= 1.0
 
 
 def test_default_configuration_steps_finite_without_escaping():
-    task = dax_tasks.make("push_rope")
+    task = Jitted(dax_tasks.make("push_rope"))
     _, state = task.reset(jax.random.PRNGKey(0))
-    a = push_rope.expert_action(task.spec, state.physics, state.goal)
-    _, _, reward, _, info = task.step(state, a)
+    _, _, reward, _, info = task.step(state, task.expert_action(state))
     assert bool(info["finite"]) and not bool(info["escaped"]), info
     assert 0.0 <= float(reward) <= 1.0
 
@@ -148,17 +145,17 @@ def test_expert_hook_matches_expert_action_and_batches(task, reset0, expert, bat
                                   np.asarray(expert(state)))
     _, states = batched.reset(jax.random.PRNGKey(0))
     actions = batched.expert_action(states)
-    assert actions.shape == batched.action_shape, f"got {actions.shape}"
-    assert batched.action_space.contains(np.asarray(actions))
+    assert actions.shape == (2, 6), f"got {actions.shape}"
+    assert all(batched.action_space.contains(np.asarray(a)) for a in actions)
 
 
 def test_long_push_gradient_is_finite():
     """Regression: at 160+ substeps some pushes gave NaN action gradients (a grid node
     with a vanishing mass: its reverse-mode derivative overflowed). Fixed in dax-physics by
     treating nodes below a millionth of a particle's mass as empty."""
-    task = dax_tasks.make("push_rope", substeps=160)
-    _, state = task.reset(jax.random.PRNGKey(0))
+    env = dax_tasks.make("push_rope", substeps=160)
+    _, state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     a = jnp.asarray([0.401, 0.214, 0.089, 0.188, 0.131, 0.095])
-    g = jax.jit(jax.grad(lambda a: task._step_one(state, a)[4]["r_gt"]))(a)
+    g = jax.jit(jax.grad(lambda a: env.step(state, a)[4]["r_gt"]))(a)
     assert bool(jnp.all(jnp.isfinite(g))), g
     assert float(jnp.max(jnp.abs(g))) > 0.0

@@ -8,6 +8,7 @@ from PIL import Image
 
 import dax_tasks
 from dax_tasks import render
+from dax_tasks.wrappers import ObservationMode, VmapWrapper
 
 
 def test_height_map_puts_points_where_they_are():
@@ -25,30 +26,50 @@ def test_height_map_puts_points_where_they_are():
 
 
 @pytest.fixture(scope="module")
-def batched():
-    return dax_tasks.make("fold_cloth1", batch_size=2, cache_goal=False)
+def fold():
+    return dax_tasks.make("fold_cloth1", cache_goal=False)
 
 
-def test_image_obs_batched_and_jittable(batched):
-    _, state = batched.reset(jax.random.PRNGKey(0))
-    images = batched.image_obs(state, res=32)
-    assert images["height"].shape == (2, 32, 32) and images["height"].dtype == jnp.float32
-    assert images["rgb"].shape == (2, 32, 32, 3) and images["rgb"].dtype == jnp.uint8
-    # the flat cloth covers a good part of the view; the goal's folded triangle is higher
-    covered = float(jnp.mean(images["height"][0] > 0))
-    assert 0.15 < covered < 0.9, covered
-    inside = jax.jit(lambda s: batched.image_obs(s, res=32)["height"].sum())(state)
-    assert np.isfinite(float(inside))
-    frames = batched.render(state, res=32)
+@pytest.mark.parametrize("mode, shape, dtype", [
+    ("height", (32, 32, 1), np.float32), ("rgb", (32, 32, 3), np.uint8),
+    ("rgbd", (32, 32, 4), np.float32), ("particles", (122, 3), np.float32)])
+def test_observation_modes_batched_under_jit(fold, mode, shape, dtype):
+    env = ObservationMode(fold, mode, image_size=32)
+    assert env.observation_space.shape == shape and env.observation_space.dtype == dtype
+    obs, state = jax.jit(VmapWrapper(env, batch_size=2).reset)(jax.random.PRNGKey(0))
+    assert obs.shape == (2, *shape) and obs.dtype == dtype, (obs.shape, obs.dtype)
+    assert env.observation_space.contains(np.asarray(obs[0])), f"{mode} obs outside its space"
+    if mode == "height":
+        # the flat cloth covers a good part of the view (the goal's triangle is in it too)
+        covered = float(jnp.mean(obs[0] > 0))
+        assert 0.15 < covered < 0.9, covered
+    if mode == "particles":
+        np.testing.assert_array_equal(np.asarray(obs[0, :-1]), np.asarray(
+            state.physics.x[0]))
+    _, _, reward, _, _ = jax.jit(VmapWrapper(env, batch_size=2).step)(
+        state, jnp.zeros((2, 6)) + jnp.asarray(fold.spec.action_low))
+    assert reward.shape == (2,)
+
+
+def test_render_gives_frames_with_the_gripper(fold):
+    _, state = jax.jit(VmapWrapper(fold, batch_size=2).reset)(jax.random.PRNGKey(0))
+    frames = render.render(fold, state, res=32)
     assert frames.shape == (2, 32, 32, 3) and frames.dtype == np.uint8
     red = np.all(frames[0] == np.asarray(render.GRIPPER_RGB, np.uint8), axis=-1)
     assert red.any(), "the gripper marker is missing"
 
 
+def test_unknown_observation_mode_is_refused(fold):
+    with pytest.raises(ValueError, match="unknown observation mode 'depth'"):
+        ObservationMode(fold, "depth")
+    with pytest.raises(ValueError, match="unknown observation mode"):
+        dax_tasks.make("fold_cloth1", obs_mode="rgba")
+
+
 def test_record_episode_and_gif(tmp_path):
-    task = dax_tasks.make("fold_cloth1", cache_goal=False)
-    frames = render.record_episode(task, res=48)
-    assert len(frames) == task.horizon + 1
+    env = dax_tasks.make("fold_cloth1", cache_goal=False)
+    frames = render.record_episode(env, res=48)
+    assert len(frames) == env.horizon + 1
     assert not np.array_equal(frames[0], frames[-1]), "the expert's fold changed nothing"
     path = render.save_video(frames, tmp_path / "ep.gif", fps=5)
     with Image.open(path) as gif:

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import Jitted
 
 import dax_tasks
 from dax_physics.mpm import total_mass
@@ -20,27 +21,23 @@ SMALL_THROW = ((0, 8, -0.015, 0.0, 0.005), (8, 6, 0.0, 0.012, 0.0))
 
 
 def small_overrides():
-    scene = dataclasses.replace(wr.WHIP_ROPE.spec.scene, throw=SMALL_THROW)
+    scene = dataclasses.replace(wr.WHIP_ROPE.scene, throw=SMALL_THROW)
     return dict(substeps=8, horizon=HORIZON, scene=scene)
 
 
 @pytest.fixture(scope="module")
 def wtask():
-    return dax_tasks.make("whip_rope", **small_overrides())
+    return Jitted(dax_tasks.make("whip_rope", **small_overrides()))
 
 
 @pytest.fixture(scope="module")
-def wbatched():
-    return dax_tasks.make("whip_rope", batch_size=2, **small_overrides())
+def wbatched(wtask):
+    return Jitted(wtask.env, batch_size=2)
 
 
 @pytest.fixture(scope="module")
 def wreset(wtask):
     return wtask.reset(jax.random.PRNGKey(0))
-
-
-def _step_time(task):
-    return task.spec.substeps * task.spec.scene.dt
 
 
 def _episode(task, seed, policy):
@@ -53,14 +50,16 @@ def _episode(task, seed, policy):
 
 
 def test_default_spec_and_canonical_throw_are_feasible():
-    spec = wr.WHIP_ROPE.spec
+    spec = wr.WHIP_ROPE
     assert spec.horizon == 70 and spec.action_kind == "velocity" and spec.action_dim == 3
     assert spec.distance == "l2"
-    vel = wr.throw_velocities(spec)
+    env = wr.WhipRope(spec)
+    assert env.dt == pytest.approx(0.01), f"10 ms per env step, got {env.dt}"
+    vel = env.throw_velocities()
     speed = np.linalg.norm(vel, axis=1)
     assert speed.max() <= spec.scene.grip_speed, f"throw peak speed {speed.max():.3f} m/s"
     assert np.all(vel <= np.asarray(spec.action_high)) and np.all(vel >= spec.action_low)
-    path = wr.canonical_path(spec)
+    path = env.canonical_path()
     lo, hi = wr.workspace(spec.scene)
     assert np.all(path >= lo - 1e-6) and np.all(path <= hi + 1e-6), (path.min(0), path.max(0))
     disp = path[-1] - path[0]
@@ -109,7 +108,7 @@ def test_action_gradient_finite_and_nonzero(wtask, wreset):
     _, s, *_ = wtask.step(s, wtask.expert_action(s))  # the rope is moving
 
     def r_gt(action):
-        return wtask._step_one(s, action)[4]["r_gt"]
+        return wtask.env.step(s, action)[4]["r_gt"]
 
     g = jax.jit(jax.grad(r_gt))(jnp.asarray([-0.4, 0.1, 0.1]))
     assert bool(jnp.all(jnp.isfinite(g))), g
@@ -120,7 +119,7 @@ def test_held_end_follows_gripper(wtask, wreset):
     _, s = wreset
     held = wr.held_mask(wtask.spec.scene)
     assert 0 < held.sum() < held.size // 4
-    T = _step_time(wtask)
+    T = wtask.dt
     a = np.asarray([0.3, -0.2, 0.1], np.float32)
     x0 = np.asarray(s.physics.x)
     _, s1, *_ = wtask.step(s, a)
@@ -130,21 +129,21 @@ def test_held_end_follows_gripper(wtask, wreset):
                                atol=2e-5)
     np.testing.assert_allclose(np.asarray(s1.physics.v)[held],
                                np.broadcast_to(a, x0[held].shape), atol=1e-5)
-    ee0 = np.asarray(wr.end_effector(wtask.spec, s.physics))
-    ee1 = np.asarray(wr.end_effector(wtask.spec, s1.physics))
+    ee0 = np.asarray(wtask.end_effector(s.physics))
+    ee1 = np.asarray(wtask.end_effector(s1.physics))
     np.testing.assert_allclose(ee1 - ee0, a * T, atol=2e-5)
     # the free rope is pulled along (towards +x on average, it starts at rest)
     assert float(np.mean(x1[~held, 0] - x0[~held, 0])) > 0.0
     # speed cap (norm) and the workspace floor
     _, s2, *_ = wtask.step(s, np.asarray([0.75, 0.75, -0.75], np.float32))
-    d = np.asarray(wr.end_effector(wtask.spec, s2.physics)) - ee0
+    d = np.asarray(wtask.end_effector(s2.physics)) - ee0
     assert float(np.linalg.norm(d[:2])) <= wtask.spec.scene.grip_speed * T + 1e-5
     assert float(d[2]) >= -1e-6, f"the gripper went below the workspace: dz = {d[2]}"
 
 
 def test_mass_conserved(wtask, wreset):
     _, s0 = wreset
-    params = wr.mpm_config(wtask.spec.scene).params
+    params = wtask.default_params.physics
     m0 = float(total_mass(params, s0.physics))
     s = s0
     for _ in range(3):
@@ -152,7 +151,7 @@ def test_mass_conserved(wtask, wreset):
     assert s.physics.x.shape == s0.physics.x.shape
     assert float(total_mass(params, s.physics)) == pytest.approx(m0, rel=1e-6)
     rope = np.pi * wtask.spec.scene.rope_radius ** 2 * wtask.spec.scene.rope_length
-    assert m0 == pytest.approx(wtask.spec.scene.density * rope, rel=0.15)
+    assert m0 == pytest.approx(wr.ROPE.density * rope, rel=0.15)
 
 
 def test_expert_improves_over_zero_actions(wtask):
@@ -167,9 +166,9 @@ def test_expert_improves_over_zero_actions(wtask):
 def _gap_after_pull(speed, steps=10):
     """Largest distance [m] from the free rope to the held block while the gripper pulls
     straight away along the rope at ``speed`` [m/s] (the cap lifted to ``speed``)."""
-    scene = dataclasses.replace(wr.WHIP_ROPE.spec.scene, grip_speed=speed)
-    task = dax_tasks.make("whip_rope", scene=scene, action_low=(-2.0,) * 3,
-                          action_high=(2.0,) * 3, cache_goal=False)
+    scene = dataclasses.replace(wr.WHIP_ROPE.scene, grip_speed=speed)
+    task = Jitted(dax_tasks.make("whip_rope", scene=scene, action_low=(-2.0,) * 3,
+                                 action_high=(2.0,) * 3, cache_goal=False))
     held = wr.held_mask(scene)
     _, s = task.reset(jax.random.PRNGKey(0))
     gap = 0.0
@@ -186,7 +185,7 @@ def test_the_speed_cap_is_where_the_rope_starts_to_tear():
     rope stays joined to the held end (the free rope within about a cell); at twice the
     cap it tears off (measured over these 10 steps: 1.4 cm at 0.75 m/s, 7.9 cm at 1.5;
     over 15 steps 4.1 cm at 1.0 m/s)."""
-    cap = wr.WHIP_ROPE.spec.scene.grip_speed
-    dx = wr.WHIP_ROPE.spec.scene.dx
+    cap = wr.WHIP_ROPE.scene.grip_speed
+    dx = wr.WHIP_ROPE.scene.dx
     assert _gap_after_pull(cap) < 1.5 * dx
     assert _gap_after_pull(2 * cap) > 4 * dx

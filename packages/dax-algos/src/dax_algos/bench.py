@@ -3,8 +3,9 @@
 ``dax-bench run --tasks T1,T2|all --methods M1,M2|all --seeds K [--quick] --out DIR``
 
 For each task the runner builds it once (``dax_tasks.make``), for each method it builds and
-compiles the episode once (``jax.jit(...).lower(key).compile()``, timed as ``compile_s``),
-then runs seeds ``0..K-1``: seed ``k`` uses ``PRNGKey(k)`` (the initial state comes from
+compiles the episode once (``jax.jit(...).lower(key, params).compile()``, timed as
+``compile_s``; the env's default params are an argument, not constants), then runs seeds
+``0..K-1``: seed ``k`` uses ``PRNGKey(k)`` (the initial state comes from
 ``fold_in(key, 0)``, the same for every method). The **episode score is the final-step
 ``r_gt``**. Every finished run is appended to ``results.csv`` at once (one flushed, fsynced
 write per row); started again, the runner skips the (task, method, seed, budget) rows already
@@ -34,6 +35,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import dax_tasks
+from dax_tasks.io import atomic_write
 
 from . import registry, report
 
@@ -168,9 +170,10 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
              progress: bool = True) -> list[dict]:
     """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
 
-    task_overrides: ``{task: {TaskSpec field: value}}`` passed to ``dax_tasks.make`` (e.g. a
-    coarser scene for tests). method_overrides: ``{method: {config field: value}}`` on top
-    of the budget. cache_goal: passed to ``dax_tasks.make``."""
+    task_overrides: ``{task: {TaskSpec field or lam/aux_weight: value}}`` passed to
+    ``dax_tasks.make`` (e.g. a coarser scene for tests). method_overrides: ``{method:
+    {config field: value}}`` on top of the budget. cache_goal: passed to
+    ``dax_tasks.make``."""
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
     if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
@@ -192,7 +195,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
         if not t_todo:
             continue
         try:
-            task = dax_tasks.make(t, seed=0, cache_goal=cache_goal, **task_overrides.get(t, {}))
+            env = dax_tasks.make(t, cache_goal=cache_goal, **task_overrides.get(t, {}))
         except Exception as err:  # noqa: BLE001 - recorded, the grid continues
             for m, s in t_todo:
                 append_row(csv_path, _row(t, m, s, budget, status="failed",
@@ -204,7 +207,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
             if not m_seeds:
                 continue
             bar.set_postfix_str(f"{t} / {m}")
-            _run_method(task, t, m, m_seeds, budget, method_overrides.get(m, {}), csv_path,
+            _run_method(env, t, m, m_seeds, budget, method_overrides.get(m, {}), csv_path,
                         bar)
         jax.clear_caches()
     bar.close()
@@ -213,14 +216,15 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     return rows
 
 
-def _run_method(task, t, m, seeds, budget, overrides, csv_path, bar):
+def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar):
     method = registry.get(m)
+    params = env.default_params
     try:
         config = method.config(budget, t, **overrides)
-        runnable = method.build(task, config)
+        runnable = method.build(env, config)
         key0 = jax.random.PRNGKey(0)
         t0 = time.perf_counter()
-        compiled = jax.jit(runnable.episode).lower(key0).compile()
+        compiled = jax.jit(runnable.episode).lower(key0, params).compile()
         compile_s = time.perf_counter() - t0
     except Exception as err:  # noqa: BLE001
         status = "skipped" if "has no scripted expert" in str(err) else "failed"
@@ -231,7 +235,7 @@ def _run_method(task, t, m, seeds, budget, overrides, csv_path, bar):
     for s in seeds:
         try:
             t0 = time.perf_counter()
-            out = jax.device_get(jax.block_until_ready(compiled(jax.random.PRNGKey(s))))
+            out = jax.device_get(jax.block_until_ready(compiled(jax.random.PRNGKey(s), params)))
             wall = time.perf_counter() - t0
             row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s,
                        **evaluate(out, runnable))
@@ -247,7 +251,7 @@ def write_reports(rows, out: Path, budget: str) -> None:
     rows = [r for r in rows if r["budget"] == budget]
     text = report.markdown(rows, dax_tasks.TASKS, registry.names(),
                            title=f"DaX benchmark ({budget} budget)")
-    report.write_text_atomic(out / "results.md", text)
+    atomic_write(out / "results.md", text)
     report.charts(rows, out, registry.names())
 
 

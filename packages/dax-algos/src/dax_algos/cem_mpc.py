@@ -86,18 +86,19 @@ def cem_optimise(value_fn, mean, key, config: CEMConfig):
     return best_z, best_v
 
 
-def make_planner(task, config: CEMConfig) -> common.Planner:
-    """CEM-MPC for ``task``: pstate is the warm-start mean (h, d)."""
-    h = common.plan_length(task, config.horizon)
-    d = task.spec.action_dim
-    value = common.make_objective(task, config.objective)
+def make_planner(env, config: CEMConfig) -> common.Planner:
+    """CEM-MPC for ``env``: pstate is the warm-start mean (h, d)."""
+    h = common.plan_length(env, config.horizon)
+    d = env.spec.action_dim
+    value = common.make_objective(env, config.objective)
 
     def init(key):
         return jnp.zeros((h, d), jnp.float32)
 
-    def plan(mean, env_state, key):
-        best_z, best_v = cem_optimise(lambda z: value(env_state, z), mean, key, config)
-        action = common.to_action(task, best_z[0])
+    def plan(mean, env_state, key, params):
+        best_z, best_v = cem_optimise(lambda z: value(env_state, z, params), mean, key,
+                                      config)
+        action = common.to_action(env, best_z[0])
         return action, common.shift(best_z, jnp.zeros(d)), common.no_grad_stats(best_v)
 
     sims = config.iterations * config.population * h

@@ -5,9 +5,11 @@ Actions are planned in *normalised* coordinates ``z`` in ``[-1, 1]^d`` (the task
 mapped affinely), so one step size or standard deviation fits every task; ``to_action`` maps
 back. A plan is a ``(h, d)`` array of normalised actions for the next ``h`` environment steps.
 
-A planner is a :class:`Planner`: ``init(key) -> pstate`` and ``plan(pstate, env_state, key) ->
-(action, pstate, PlanStats)``, both pure and jittable; :func:`make_episode` runs one episode
-with it as a single ``lax.scan`` (replanning from the current state at every step).
+A planner is a :class:`Planner`: ``init(key) -> pstate`` and ``plan(pstate, env_state, key,
+params) -> (action, pstate, PlanStats)``, both pure and jittable; :func:`make_episode` runs
+one episode with it as a single ``lax.scan`` (replanning from the current state at every
+step). ``env`` is a pure :class:`dax_tasks.Env` and ``params`` its :class:`dax_tasks.EnvParams`
+(data, so changing λ or a material number does not recompile an episode).
 """
 
 from __future__ import annotations
@@ -23,28 +25,28 @@ import numpy as np
 OBJECTIVES = ("final", "sum")
 
 
-def action_scale(task) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """``(mid, half)`` of the task's action box: ``action = mid + half * z``."""
-    low = np.asarray(task.spec.action_low, np.float32)
-    high = np.asarray(task.spec.action_high, np.float32)
+def action_scale(env) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """``(mid, half)`` of the env's action box: ``action = mid + half * z``."""
+    low = np.asarray(env.spec.action_low, np.float32)
+    high = np.asarray(env.spec.action_high, np.float32)
     return jnp.asarray(0.5 * (low + high)), jnp.asarray(0.5 * (high - low))
 
 
-def to_action(task, z):
+def to_action(env, z):
     """The action of normalised coordinates ``z`` (clipped to [-1, 1]) [task units]."""
-    mid, half = action_scale(task)
+    mid, half = action_scale(env)
     return mid + half * jnp.clip(z, -1.0, 1.0)
 
 
-def to_normalised(task, action):
+def to_normalised(env, action):
     """Inverse of :func:`to_action` (0 where the box has zero width)."""
-    mid, half = action_scale(task)
+    mid, half = action_scale(env)
     return jnp.where(half > 0, (action - mid) / jnp.where(half > 0, half, 1.0), 0.0)
 
 
-def plan_length(task, horizon: int) -> int:
+def plan_length(env, horizon: int) -> int:
     """The planning horizon actually used: ``horizon`` clipped to the episode length."""
-    return max(1, min(int(horizon), int(task.horizon)))
+    return max(1, min(int(horizon), int(env.horizon)))
 
 
 def check_objective(objective: str) -> None:
@@ -53,21 +55,22 @@ def check_objective(objective: str) -> None:
                          f"valid: {', '.join(OBJECTIVES)}")
 
 
-def make_objective(task, objective: str = "final") -> Callable:
-    """``value(env_state, z_seq) -> scalar``: the return of the normalised action sequence
-    ``z_seq`` (h, d) simulated from ``env_state`` with the task's pure step.
+def make_objective(env, objective: str = "final") -> Callable:
+    """``value(env_state, z_seq, params) -> scalar``: the return of the normalised action
+    sequence ``z_seq`` (h, d) simulated from ``env_state`` with the env's pure step.
 
     ``"final"``: the task reward after the last planned step that is still inside the
     episode (the episode score is the final-step ``r_gt``); ``"sum"``: the sum of the rewards
     of the planned steps inside the episode. Steps past the episode's end are simulated (the
-    shapes are static) but do not count. Differentiable in ``z_seq`` and ``env_state``.
+    shapes are static) but do not count. Differentiable in ``z_seq``, ``env_state`` and
+    ``params``.
     """
     check_objective(objective)
-    horizon = task.horizon
+    horizon = env.horizon
 
-    def value(env_state, z_seq):
+    def value(env_state, z_seq, params):
         def body(s, z):
-            _, s2, reward, _, _ = task.step(s, to_action(task, z))
+            _, s2, reward, _, _ = env.step(s, to_action(env, z), params)
             return s2, (reward, s.t)
 
         _, (rewards, t0) = jax.lax.scan(body, env_state, z_seq)
@@ -106,7 +109,8 @@ def no_grad_stats(objective) -> PlanStats:
 class Planner:
     """A method that chooses one action per environment step.
 
-    init(key) -> pstate; plan(pstate, env_state, key) -> (action, pstate, PlanStats): pure.
+    init(key) -> pstate; plan(pstate, env_state, key, params) -> (action, pstate,
+    PlanStats): pure.
     sim_steps_per_plan: environment steps simulated per ``plan`` call (planning rollouts,
     forward passes); backprop_steps_per_plan: environment steps differentiated through per
     call (reverse passes); nan_grads_zeroed: non-finite gradients are zeroed by design
@@ -136,22 +140,22 @@ class EpisodeOutput(NamedTuple):
     stats: PlanStats
 
 
-def make_episode(task, planner: Planner) -> Callable:
-    """``episode(key) -> EpisodeOutput``: reset the task with ``fold_in(key, 0)`` (so every
-    method sees the same initial state for a seed) and run ``task.horizon`` steps, the
+def make_episode(env, planner: Planner) -> Callable:
+    """``episode(key, params) -> EpisodeOutput``: reset the env with ``fold_in(key, 0)`` (so
+    every method sees the same initial state for a seed) and run ``env.horizon`` steps, the
     planner choosing each action from the current state with keys from ``fold_in(key, 1)``.
     Pure; jit it."""
-    horizon = task.horizon
+    horizon = env.horizon
 
-    def episode(key):
-        _, state = task.reset(jax.random.fold_in(key, 0))
+    def episode(key, params):
+        _, state = env.reset(jax.random.fold_in(key, 0), params)
         k_init, k_run = jax.random.split(jax.random.fold_in(key, 1))
         pstate = planner.init(k_init)
 
         def body(carry, k):
             state, pstate = carry
-            action, pstate, stats = planner.plan(pstate, state, k)
-            _, state, reward, _, info = task.step(state, action)
+            action, pstate, stats = planner.plan(pstate, state, k, params)
+            _, state, reward, _, info = env.step(state, action, params)
             out = (action, reward, info["r_gt"], info["distance"], info["finite"], stats)
             return (state, pstate), out
 
@@ -163,10 +167,10 @@ def make_episode(task, planner: Planner) -> Callable:
     return episode
 
 
-def episode_env_steps(task, planner: Planner) -> tuple[int, int]:
+def episode_env_steps(env, planner: Planner) -> tuple[int, int]:
     """``(simulated, differentiated)`` environment steps of one episode: the planning
     rollouts (forward) plus the executed steps, and the steps of the reverse passes."""
-    h = task.horizon
+    h = env.horizon
     return h * (planner.sim_steps_per_plan + 1), h * planner.backprop_steps_per_plan
 
 

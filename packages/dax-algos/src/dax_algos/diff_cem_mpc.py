@@ -31,23 +31,23 @@ class DiffCEMConfig:
             raise ValueError("DiffCEMConfig needs a CEMConfig and a DiffMPCConfig")
 
 
-def make_planner(task, config: DiffCEMConfig) -> common.Planner:
+def make_planner(env, config: DiffCEMConfig) -> common.Planner:
     cem = config.cem
     diff = dataclasses.replace(config.diff, horizon=cem.horizon, objective=cem.objective)
-    h = common.plan_length(task, cem.horizon)
-    d = task.spec.action_dim
-    value = common.make_objective(task, cem.objective)
+    h = common.plan_length(env, cem.horizon)
+    d = env.spec.action_dim
+    value = common.make_objective(env, cem.objective)
 
     def init(key):
         return jnp.zeros((h, d), jnp.float32)
 
-    def plan(mean, env_state, key):
+    def plan(mean, env_state, key, params):
         def f(z):
-            return value(env_state, z)
+            return value(env_state, z, params)
 
         cem_z, cem_v = cem_optimise(f, mean, key, cem)
         best_z, _, stats = gradient_refine(f, cem_z, diff, best_z=cem_z, best_v=cem_v)
-        action = common.to_action(task, best_z[0])
+        action = common.to_action(env, best_z[0])
         return action, common.shift(best_z, jnp.zeros(d)), stats
 
     sims = cem.iterations * cem.population * h + (diff.steps + 1) * h

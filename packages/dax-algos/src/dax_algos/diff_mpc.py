@@ -108,18 +108,18 @@ def gradient_refine(value_fn, z0, config, best_z=None, best_v=None):
     return best_z, best_v, stats
 
 
-def make_planner(task, config: DiffMPCConfig) -> common.Planner:
-    """diff-MPC for ``task``: pstate is ``(previous solution (h, d), first plan?)``."""
-    h = common.plan_length(task, config.horizon)
-    d = task.spec.action_dim
-    value = common.make_objective(task, config.objective)
+def make_planner(env, config: DiffMPCConfig) -> common.Planner:
+    """diff-MPC for ``env``: pstate is the previous solution (h, d)."""
+    h = common.plan_length(env, config.horizon)
+    d = env.spec.action_dim
+    value = common.make_objective(env, config.objective)
 
     def init(key):
         return jax.random.uniform(key, (h, d), jnp.float32, -1.0, 1.0)
 
-    def plan(z0, env_state, key):
-        best_z, _, stats = gradient_refine(lambda z: value(env_state, z), z0, config)
-        action = common.to_action(task, best_z[0])
+    def plan(z0, env_state, key, params):
+        best_z, _, stats = gradient_refine(lambda z: value(env_state, z, params), z0, config)
+        action = common.to_action(env, best_z[0])
         tail = jax.random.uniform(key, (d,), jnp.float32, -1.0, 1.0)
         return action, common.shift(best_z, tail), stats
 

@@ -1,7 +1,8 @@
 """The method registry: name -> :class:`Method` (config class, builder, budgets).
 
-A method builds, for one task and config, a :class:`Runnable`: a pure ``episode(key) ->
-EpisodeOutput`` (the runner jits it once per task and method and calls it per seed) and the
+A method builds, for one env and config, a :class:`Runnable`: a pure ``episode(key, params)
+-> EpisodeOutput`` (the runner jits it once per task and method and calls it per seed with
+the env's default params) and the
 number of simulated / differentiated environment steps one call costs. The planners and the
 reference rows build it from a :class:`dax_algos.common.Planner`; a learning method (PPO,
 APG, SHAC, Transporter, ILD) can register a builder whose ``episode(key)`` trains and then
@@ -32,7 +33,7 @@ HEAVY_TASKS = frozenset({"push_rope", "pour_water", "pour_soup", "whip_rope"})
 
 @dataclasses.dataclass(frozen=True)
 class Runnable:
-    """episode(key) -> EpisodeOutput (pure); env_steps / backprop_steps per call;
+    """episode(key, params) -> EpisodeOutput (pure); env_steps / backprop_steps per call;
     nan_grads_zeroed: non-finite gradients are zeroed by design (not a failure)."""
 
     episode: Callable
@@ -45,7 +46,7 @@ class Runnable:
 @dataclasses.dataclass(frozen=True)
 class Method:
     """name: command-line name; kind: ``reference`` / ``planning`` / ``rl`` / ``il``;
-    config_cls: its frozen config dataclass; build(task, config) -> Runnable;
+    config_cls: its frozen config dataclass; build(env, config) -> Runnable;
     budgets: {"quick" | "quick_heavy" | "full": config keyword arguments};
     uses_gradients: whether it differentiates through the simulator."""
 
@@ -82,12 +83,12 @@ def _build_config(cls, kwargs):
 
 
 def planner_method(name, kind, config_cls, make_planner, budgets, uses_gradients=False):
-    """A :class:`Method` from a planner builder ``make_planner(task, config) -> Planner``."""
+    """A :class:`Method` from a planner builder ``make_planner(env, config) -> Planner``."""
 
-    def build(task, config):
-        planner = make_planner(task, config)
-        sims, back = common.episode_env_steps(task, planner)
-        return Runnable(common.make_episode(task, planner), sims, back, uses_gradients,
+    def build(env, config):
+        planner = make_planner(env, config)
+        sims, back = common.episode_env_steps(env, planner)
+        return Runnable(common.make_episode(env, planner), sims, back, uses_gradients,
                         planner.nan_grads_zeroed)
 
     return Method(name, kind, config_cls, build, MappingProxyType(dict(budgets)),

@@ -6,11 +6,12 @@ temporary name and renamed into place."""
 from __future__ import annotations
 
 import math
-import os
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from dax_tasks.io import atomic_write
 
 
 def _float(v):
@@ -116,12 +117,6 @@ def markdown(rows, task_order=(), method_order=(), title="DaX benchmark") -> str
     return "\n".join(lines) + "\n"
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def charts(rows, out_dir: Path, method_order=()) -> list[Path]:
     """One PNG per task, ``chart_<task>.png``: score against wall time and against simulated
     environment steps (log x), each run a faint dot and each method's mean ± SE a marker."""
@@ -157,9 +152,7 @@ def charts(rows, out_dir: Path, method_order=()) -> list[Path]:
         fig.suptitle(f"{task}: score against compute")
         fig.tight_layout()
         path = out_dir / f"chart_{task}.png"
-        tmp = path.with_name(path.name + ".tmp")
-        fig.savefig(tmp, format="png", dpi=100)
+        atomic_write(path, lambda f, fig=fig: fig.savefig(f, format="png", dpi=100))
         plt.close(fig)
-        os.replace(tmp, path)
         written.append(path)
     return written

@@ -11,7 +11,6 @@ The goal itself is written as ``goal.<ext>``.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -22,24 +21,14 @@ from . import fileformat as ff
 FORMATS = ("vtu", "xdmf", "ply")
 
 
-def _tuples(value):
-    if isinstance(value, list):
-        return tuple(_tuples(v) for v in value)
-    return value
-
-
 def cloth_faces(meta: dict):
-    """The triangle faces (F, 3) of the cloth a file's task uses, or ``None`` when the
-    task's object is not a cloth (its scene is not a ``dax_tasks._cloth.ClothScene``)."""
-    spec = meta["spec"]
-    if spec.get("scene_class") != "dax_tasks._cloth.ClothScene":
-        return None
-    from dax_tasks import _cloth
+    """The triangle faces (F, 3) of the object of a file's task (the env's
+    ``object_faces``: a cloth's mesh), or ``None`` for particles."""
+    import dax_tasks
 
-    names = {f.name for f in dataclasses.fields(_cloth.ClothScene)}
-    scene = _cloth.ClothScene(**{k: _tuples(v) for k, v in spec["scene"].items()
-                                 if k in names})
-    return np.asarray(_cloth.rest_vertices(scene)[1], np.int64)
+    spec = ff.spec_from_meta(meta)
+    faces = dax_tasks.env_class(meta["task"])(spec).object_faces
+    return None if faces is None else np.asarray(faces, np.int64)
 
 
 def _mesh(points, faces, fmt, point_data):

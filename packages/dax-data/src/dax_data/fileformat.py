@@ -3,7 +3,8 @@
 The layout is documented in the package README ("File format"). In short::
 
     /                      file attributes: format, format_version, task, fingerprint,
-                           versions, spec, units, scene_doc, generator, created_utc
+                           versions, spec, params, units, scene_doc, generator,
+                           created_utc (version 1 files have no ``params``)
     /goal                  (N, 3) float32 [m], attribute ``provenance`` (JSON)
     /episodes/000000       group per episode, attributes seed, policy, length, score
         actions            (T, A) float32
@@ -15,22 +16,19 @@ The layout is documented in the package README ("File format"). In short::
         end_effector       (T + 1, 3) float32 [m]
 
 Every write goes to a temporary file in the same directory that is flushed, fsynced and
-renamed into place (:func:`append_episode`), so the file on disk is always complete: an
-interrupted run loses at most the episode it was recording. Nothing is pickled: metadata
+renamed into place (:func:`append_episode`, with :func:`dax_tasks.io.atomic_path`, the one
+atomic-write helper of DaX), so the file on disk is always complete: an interrupted run
+loses at most the episode it was recording. Nothing is pickled: metadata
 is JSON text in string attributes, data are plain numeric datasets (chunked, gzip with the
 shuffle filter, and a Fletcher-32 checksum per chunk so a corrupted chunk is detected).
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import datetime
 import json
 import os
-import shutil
-import tempfile
-from collections.abc import Iterator
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -40,8 +38,13 @@ import numpy as np
 
 #: Identifies a dax-data demonstration file (the ``format`` attribute).
 FORMAT_NAME = "dax-data/demonstrations"
-#: The newest layout this version writes and reads. Files with a larger number are refused.
-FORMAT_VERSION = 1
+#: The layout this version writes; it reads versions 1 and 2 and refuses larger numbers.
+#: Version 2: ``spec`` is the spec's own JSON (:meth:`dax_tasks.TaskSpec.to_json`: the
+#: scene's class by name, no module path), ``fingerprint`` the spec's own, and ``params``
+#: holds the numbers the episodes ran with (λ, the auxiliary weight, the physics numbers),
+#: which version 1 kept in the spec. Version 1 files are still read, validated and
+#: exported, but not extended (:func:`check_extendable`).
+FORMAT_VERSION = 2
 
 #: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
 #: checked against each other: T steps, A action dim, O observation dim, K point frames,
@@ -58,7 +61,9 @@ EPISODE_DATASETS = {
 EPISODE_ATTRS = ("seed", "policy", "length", "score")
 FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "spec", "units",
               "scene_doc", "generator", "created_utc")
-JSON_ATTRS = ("versions", "spec", "units", "generator")
+#: Attributes a file of a given version has beyond :data:`FILE_ATTRS`.
+VERSION_ATTRS = {1: (), 2: ("params",)}
+JSON_ATTRS = ("versions", "spec", "params", "units", "generator")
 
 #: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
 #: attribute). Scene fields are SI; their units are in the scene class docstring, stored
@@ -67,7 +72,9 @@ UNITS = {
     "spec.action_low": "m for push / pick_place actions (x, y, z, x', y', z'); "
                        "m/s for velocity actions",
     "spec.action_high": "as spec.action_low",
-    "spec.lam": "1/m",
+    "params.lam": "1/m",
+    "params.aux_weight": "1",
+    "params.physics": "SI (kg/m^3 or kg/m^2, Pa or N/m, Pa s or N s/m; friction 1)",
     "spec.horizon": "environment steps",
     "spec.substeps": "physics substeps per environment step",
     "spec.scene": "SI (m, kg, s, N, Pa, rad); see the scene_doc attribute",
@@ -75,7 +82,7 @@ UNITS = {
     "actions": "as spec.action_low",
     "observations": "m (object points then end-effector position, unless the task "
                     "defines its own observe)",
-    "rewards": "1 (r_gt, plus r_aux when spec.aux_reward)",
+    "rewards": "1 (r_gt + params.aux_weight * r_aux)",
     "r_gt": "1 (exp(-lam * D))",
     "points": "m",
     "end_effector": "m",
@@ -136,35 +143,67 @@ def _jsonable(value):
     return repr(value)
 
 
-def spec_to_json(spec) -> dict:
-    """A :class:`dax_tasks.TaskSpec` (with its scene) as JSON-compatible data."""
-    out = _jsonable(spec)
-    scene = getattr(spec, "scene", None)
-    if scene is not None:
-        out["scene_class"] = f"{type(scene).__module__}.{type(scene).__qualname__}"
-    return out
+def params_to_json(params) -> dict:
+    """The numbers of a :class:`dax_tasks.EnvParams` but the goal (stored as ``/goal``):
+    ``lam``, ``aux_weight`` and the physics numbers by field name, as JSON lists."""
+    physics = params.physics
+    fields = ({f.name: getattr(physics, f.name) for f in dataclasses.fields(physics)}
+              if dataclasses.is_dataclass(physics) else {"value": physics})
+    return {"lam": float(params.lam), "aux_weight": float(params.aux_weight),
+            "physics_type": type(physics).__name__,
+            "physics": {k: _jsonable(np.asarray(v)) for k, v in fields.items()
+                        if v is not None}}
 
 
-def header(task, generator: dict) -> dict:
-    """The file attributes of a new file for ``task`` (a :class:`dax_tasks.Task`)."""
+def header(env, generator: dict) -> dict:
+    """The file attributes of a new file for ``env`` (a :class:`dax_tasks.Env` built by
+    ``dax_tasks.make``)."""
     import inspect
 
-    from dax_tasks import goals
-
-    spec = task.spec
+    spec = env.spec
     scene_doc = inspect.getdoc(type(spec.scene)) if spec.scene is not None else ""
     return {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
         "task": spec.name,
-        "fingerprint": goals.fingerprint(spec),
+        "fingerprint": spec.fingerprint(),
         "versions": package_versions(),
-        "spec": spec_to_json(spec),
+        "spec": spec.to_json(),
+        "params": params_to_json(env.default_params),
         "units": UNITS,
         "scene_doc": scene_doc or "",
         "generator": generator,
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(),
     }
+
+
+def spec_from_meta(meta: dict):
+    """The :class:`dax_tasks.TaskSpec` a file was recorded with. Version 1 files stored
+    ``lam``/``aux_reward`` in the spec and the scene's class by module path, and their
+    scenes had fields that are now params: those are dropped (they do not change the
+    scene's geometry)."""
+    import dataclasses as dc
+
+    import dax_tasks
+
+    data = dict(meta["spec"])
+    if meta["format_version"] == 1:
+        for key in ("lam", "aux_reward", "scene_class"):
+            data.pop(key, None)
+        scene_type = type(dax_tasks.get_spec(meta["task"]).scene)
+        names = {f.name for f in dc.fields(scene_type)}
+        data["scene"] = {k: v for k, v in (data.get("scene") or {}).items() if k in names}
+        return dax_tasks.TaskSpec.from_json(data, scene_type)
+    return dax_tasks.TaskSpec.from_json(data)
+
+
+def check_extendable(path, meta: dict) -> None:
+    """Refuse to add episodes to a file of an older format version."""
+    if meta["format_version"] != FORMAT_VERSION:
+        raise DataFileError(
+            f"{path}: written in format version {meta['format_version']} by an older "
+            f"dax-data; it can be read, validated and exported, but new episodes go to a new "
+            f"file (format version {FORMAT_VERSION}): choose another --out")
 
 
 # ---------------------------------------------------------------------- writing
@@ -183,56 +222,20 @@ def _write_array(group: h5py.Group, name: str, data) -> None:
         group.create_dataset(name, data=data, chunks=True, **_COMPRESSION)
 
 
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. platforms without directory fds
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
-
-
-@contextlib.contextmanager
-def _atomic_update(path: Path, copy_existing: bool) -> Iterator[Path]:
-    """Yield a temporary path in ``path``'s directory (a copy of ``path`` when
-    ``copy_existing``); on success fsync it and rename it onto ``path``, else delete it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        if copy_existing:
-            shutil.copyfile(path, tmp)
-            shutil.copymode(path, tmp)
-        else:  # mkstemp makes the file private (0600); give it the usual umask permissions
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-        yield tmp
-        with open(tmp, "rb+") as f:
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def stale_temporaries(path: str | os.PathLike) -> list:
     """Temporary files a killed writer of ``path`` left behind."""
-    path = Path(path)
-    return sorted(path.parent.glob(f".{path.name}.*.tmp"))
+    from dax_tasks.io import temporaries  # imported here: reading files needs no JAX
+
+    return temporaries(path)
 
 
 def create(path: str | os.PathLike, attrs: dict, goal, goal_provenance: dict) -> Path:
     """Write a new file with ``attrs`` (see :func:`header`), the goal and no episodes,
     atomically (replacing any file at ``path``)."""
     path = Path(path)
-    with (_atomic_update(path, copy_existing=False) as tmp,
+    from dax_tasks.io import atomic_path  # imported here: reading files needs no JAX
+
+    with (atomic_path(path, copy_existing=False) as tmp,
           h5py.File(tmp, "w", libver=LIBVER) as f):
         for key, value in attrs.items():
             f.attrs[key] = json.dumps(value) if key in JSON_ATTRS else value
@@ -257,7 +260,9 @@ def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
     if missing:
         raise ValueError(f"episode arrays missing: {missing}")
     r_gt = np.asarray(arrays["r_gt"], np.float32)
-    with (_atomic_update(path, copy_existing=True) as tmp,
+    from dax_tasks.io import atomic_path
+
+    with (atomic_path(path, copy_existing=True) as tmp,
           h5py.File(tmp, "a", libver=LIBVER) as f):
         name = episode_name(index)
         if name in f["episodes"]:
@@ -316,10 +321,10 @@ class DemoFile:
         if ver > FORMAT_VERSION:
             self._fail(f"format version {ver} is newer than this dax-data reads "
                        f"(up to {FORMAT_VERSION}); upgrade dax-data")
-        if ver < 1:
+        if ver not in VERSION_ATTRS:
             self._fail(f"invalid format version {ver}")
         meta = {}
-        for key in FILE_ATTRS:
+        for key in FILE_ATTRS + VERSION_ATTRS[ver]:
             if key not in f.attrs:
                 self._fail(f"missing file attribute {key!r}")
             value = f.attrs[key]

@@ -1,8 +1,9 @@
 """Goal sets: each task's goal particle set written in dax-tasks' goal-file format.
 
 ``write_goals(["fold_cloth1"], out_dir)`` computes each goal with the task's own canonical
-motion (:func:`dax_tasks.goals.compute_goal`, the code the task itself falls back to, not a
-second copy) and writes it with :func:`dax_tasks.goals.save_goal` (atomic) under the name
+motion (:func:`dax_tasks.goals.compute_goal`: the env's ``canonical_goal()``, the code the
+task itself falls back to, not a second copy) and writes it with
+:func:`dax_tasks.goals.save_goal` (atomic) under the name
 :func:`dax_tasks.goals.goal_file` gives, so a task reads it with
 ``dax_tasks.make(name, goal_path=file)``, or from the cache when ``out_dir`` is
 ``$DAX_CACHE_DIR/goals``.
@@ -36,12 +37,12 @@ def write_goal(name: str, out_dir, spec=None) -> dict:
     import dax_tasks
     from dax_tasks import goals
 
-    defn = dax_tasks.get_definition(name)
-    spec = defn.spec if spec is None else spec
+    spec = dax_tasks.get_spec(name) if spec is None else spec
+    env = dax_tasks.env_class(name)(spec)
     t0 = time.perf_counter()
-    pts = goals.compute_goal(defn, spec)
-    prov = goals.provenance(spec, f"goal(spec) of dax_tasks.{name}, written by dax-data goals",
-                            dax_data=__version__)
+    pts = goals.compute_goal(env)
+    prov = goals.provenance(spec, f"canonical_goal() of dax_tasks {type(env).__name__} "
+                            f"({name}), written by dax-data goals", dax_data=__version__)
     path = goals.save_goal(goals.goal_file(spec, Path(out_dir)), pts, prov)
     return {"task": name, "path": str(path), "points": int(pts.shape[0]),
             "seconds": time.perf_counter() - t0}

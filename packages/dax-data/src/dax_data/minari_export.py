@@ -3,7 +3,7 @@
 ``dax-data export FILE --format minari --out DIR [--dataset-id ID]`` writes the dataset
 under ``DIR`` (Minari's ``MINARI_DATASETS_PATH``); load it with::
 
-    import os, minari, dax_tasks  # importing dax_tasks registers the dax/... Gymnasium ids
+    import os, minari, dax_tasks  # gymnasium's import then registers the dax/... ids
     os.environ["MINARI_DATASETS_PATH"] = DIR
     ds = minari.load_dataset("dax/fold_cloth1/expert-v0")
     env = ds.recover_environment()  # gymnasium.make("dax/FoldCloth1-v0")
@@ -11,7 +11,7 @@ under ``DIR`` (Minari's ``MINARI_DATASETS_PATH``); load it with::
 Each episode carries the file's observations (T + 1 of them, the reset observation first),
 actions, rewards (the task reward the file recorded), ``terminations`` all false and
 ``truncations`` true at the last step (DaX episodes end at the horizon; see
-``dax_tasks.gym_envs``). The dax seeds (``task.reset(jax.random.PRNGKey(seed))``) are in the
+``dax_tasks.gym``). The dax seeds (``env.reset(jax.random.PRNGKey(seed))``) are in the
 dataset description; Minari's own per-episode seed is left unset because a Gymnasium
 ``reset(seed=s)`` of a ``dax/...`` env draws its key differently. Object points and
 end-effector tracks stay in the HDF5 file only.
@@ -50,7 +50,7 @@ def export_minari(path, out_dir, dataset_id: str | None = None) -> Path:
                           ) from err
     import gymnasium as gym
 
-    from dax_tasks.gym_envs import GYM_IDS
+    from dax_tasks.gym import GYM_IDS
 
     path = Path(path)
     with ff.DemoFile(path) as f:
@@ -100,7 +100,7 @@ def export_minari(path, out_dir, dataset_id: str | None = None) -> Path:
             algorithm_name=f"dax-data {policy}",
             description=(f"{len(episodes)} {policy} episodes of the DaX task {task}, exported "
                          f"from {path.name} (dax-data format {meta['format_version']}, "
-                         f"versions {meta['versions']}); dax seeds (task.reset("
+                         f"versions {meta['versions']}); dax seeds (env.reset("
                          f"jax.random.PRNGKey(seed))): {seeds}."))
         env.close()
         _merge(tmp_root, out_dir)  # the dataset directory moves in whole (one rename)

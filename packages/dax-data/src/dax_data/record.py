@@ -23,12 +23,13 @@ from .fileformat import DataFileError
 POLICIES = ("expert", "random")
 
 
-def make_task(name: str, batch_size: int | None = None, overrides: dict | None = None):
-    """``dax_tasks.make(name, ...)`` with a clear error for an unknown or missing task."""
+def make_task(name: str, overrides: dict | None = None):
+    """``dax_tasks.make(name, **overrides)`` with a clear error for an unknown or missing
+    task."""
     import dax_tasks
 
     try:
-        return dax_tasks.make(name, batch_size=batch_size, **(overrides or {}))
+        return dax_tasks.make(name, **(overrides or {}))
     except NotImplementedError as err:
         raise ValueError(str(err)) from None
 
@@ -43,8 +44,9 @@ def _from_json(value):
 def parse_overrides(task_name: str, items) -> dict:
     """``dax_tasks.make`` overrides from ``KEY=VALUE`` strings (the CLI's ``--override``).
 
-    ``KEY`` is a :class:`dax_tasks.TaskSpec` field (``substeps=160``, ``horizon=2``) or
-    ``scene.FIELD`` for a field of the task's scene (``scene.n=6``); ``VALUE`` is read as
+    ``KEY`` is a :class:`dax_tasks.TaskSpec` field (``substeps=160``, ``horizon=2``), a
+    params number (``lam=5``, ``aux_weight=1``) or ``scene.FIELD`` for a field of the
+    task's scene (``scene.n=6``); ``VALUE`` is read as
     JSON (``6``, ``0.5``, ``true``, ``[1, 2]``) and kept as a string when it is not JSON.
     Scene fields are applied with ``dataclasses.replace`` to the task's default scene.
     """
@@ -82,11 +84,11 @@ def parse_overrides(task_name: str, items) -> dict:
     return top
 
 
-def _check_policy(task, policy: str) -> None:
+def _check_policy(env, policy: str) -> None:
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
-    if policy == "expert" and not task.has_expert:
-        raise ValueError(f"task {task.spec.name!r} has no scripted expert; "
+    if policy == "expert" and not env.has_expert:
+        raise ValueError(f"task {env.spec.name!r} has no scripted expert; "
                          f"use --policy random")
 
 
@@ -98,18 +100,21 @@ def _random_action(spec, episode_key, t):
 
 
 class Recorder:
-    """Runs single episodes of one task (unbatched) and returns their arrays."""
+    """Runs single episodes of one env (a pure :class:`dax_tasks.Env`, unbatched) with its
+    default params and returns their arrays; reset, step and the policy are jitted once."""
 
-    def __init__(self, task, policy: str = "expert", point_stride: int = 1):
-        _check_policy(task, policy)
-        if task.batch_size is not None:
-            raise ValueError("the recorder needs an unbatched task (batch_size=None)")
+    def __init__(self, env, policy: str = "expert", point_stride: int = 1):
+        _check_policy(env, policy)
         if not (isinstance(point_stride, int) and point_stride > 0):
             raise ValueError(f"point_stride must be a positive int, got {point_stride!r}")
-        self.task, self.policy, self.point_stride = task, policy, point_stride
-        defn, spec = task.defn, task.spec
-        self._probe = jax.jit(lambda s: (defn.object_points(spec, s.physics),
-                                         defn.end_effector(spec, s.physics)))
+        self.env, self.policy, self.point_stride = env, policy, point_stride
+        self.params = env.default_params
+        spec = env.spec
+        self._reset = jax.jit(env.reset)
+        self._step = jax.jit(env.step)
+        self._expert = jax.jit(env.expert_action) if policy == "expert" else None
+        self._probe = jax.jit(lambda s: (env.object_points(s.physics),
+                                         env.end_effector(s.physics)))
         self._random = jax.jit(lambda k, t: _random_action(spec, k, t))
 
     def point_steps(self, length: int) -> np.ndarray:
@@ -120,21 +125,21 @@ class Recorder:
 
     def action(self, state, episode_key, t: int):
         if self.policy == "expert":
-            return self.task.expert_action(state)
+            return self._expert(state, self.params)
         return self._random(episode_key, t)
 
     def episode(self, seed: int) -> dict:
         """The arrays of one episode from seed ``seed`` (see :mod:`dax_data.fileformat`)."""
-        task = self.task
+        env, params = self.env, self.params
         key = jax.random.PRNGKey(seed)
-        obs, state = task.reset(key)
+        obs, state = self._reset(key, params)
         observations, actions, rewards, r_gt, ee, points = [np.asarray(obs)], [], [], [], [], {}
         pts, e = self._probe(state)
         points[0], ee0 = np.asarray(pts), np.asarray(e)
         ee.append(ee0)
-        for t in range(task.horizon):
+        for t in range(env.horizon):
             action = self.action(state, key, t)
-            obs, state, reward, done, info = task.step(state, action)
+            obs, state, reward, done, info = self._step(state, action, params)
             actions.append(np.asarray(action))
             observations.append(np.asarray(obs))
             rewards.append(np.asarray(reward))
@@ -174,22 +179,24 @@ def _check_args(path: Path, f: ff.DemoFile, args: dict, episodes: int) -> None:
                             f"{old_n})")
 
 
-def _check_task(path: Path, f: ff.DemoFile, task) -> None:
-    """Refuse to resume ``f`` if it was made with another spec, code or goal."""
-    new_spec = ff.spec_to_json(task.spec)
-    if f.meta["spec"] != json.loads(json.dumps(new_spec)):
+def _check_task(path: Path, f: ff.DemoFile, env) -> None:
+    """Refuse to resume ``f`` if it was made with another format, spec, code, params or
+    goal."""
+    ff.check_extendable(path, f.meta)
+    if f.meta["spec"] != json.loads(json.dumps(env.spec.to_json())):
         raise DataFileError(f"{path}: was made with another task spec; choose another --out")
-    from dax_tasks import goals
-
-    fp = goals.fingerprint(task.spec)
+    fp = env.spec.fingerprint()
     if f.meta["fingerprint"] != fp:
         raise DataFileError(
             f"{path}: was made by other dax-tasks/dax-physics code (fingerprint "
             f"{f.meta['fingerprint']}, now {fp}); its episodes could not be reproduced, "
             f"so it is not extended; choose another --out")
-    if not np.array_equal(f.goal, np.asarray(task.goal, np.float32)):
+    if f.meta["params"] != json.loads(json.dumps(ff.params_to_json(env.default_params))):
+        raise DataFileError(f"{path}: was made with other params (lam, aux_weight or the "
+                            f"physics numbers); choose another --out")
+    if not np.array_equal(f.goal, np.asarray(env.goal, np.float32)):
         raise DataFileError(f"{path}: was made with another goal than the task's current "
-                            f"one ({task.goal_provenance.get('method', '?')})")
+                            f"one ({(env.goal_provenance or {}).get('method', '?')})")
 
 
 def generate(task_name: str, episodes: int, seed: int, out, policy: str = "expert",
@@ -212,17 +219,17 @@ def generate(task_name: str, episodes: int, seed: int, out, policy: str = "exper
     if path.exists():  # check the file and the arguments first: they fail fast
         with ff.DemoFile(path) as f:
             _check_args(path, f, args, episodes)
-    task = make_task(task_name, overrides=overrides)
-    recorder = Recorder(task, policy, point_stride)
+    env = make_task(task_name, overrides=overrides)
+    recorder = Recorder(env, policy, point_stride)
     for stale in ff.stale_temporaries(path):  # left by a killed writer of this file
         stale.unlink(missing_ok=True)
     if path.exists():
         with ff.DemoFile(path) as f:
-            _check_task(path, f, task)
+            _check_task(path, f, env)
             done = len(f)
     else:
-        attrs = ff.header(task, {**args, "episodes": episodes})
-        ff.create(path, attrs, task.goal, task.goal_provenance)
+        attrs = ff.header(env, {**args, "episodes": episodes})
+        ff.create(path, attrs, env.goal, env.goal_provenance or {})
         done = 0
     _set_target(path, args, episodes)
     from tqdm.auto import tqdm
@@ -253,7 +260,9 @@ def _set_target(path: Path, args: dict, episodes: int) -> None:
         return
     import h5py
 
-    with (ff._atomic_update(path, copy_existing=True) as tmp,
+    from dax_tasks.io import atomic_path
+
+    with (atomic_path(path, copy_existing=True) as tmp,
           h5py.File(tmp, "a", libver=ff.LIBVER) as h):
         h.attrs["generator"] = json.dumps({**args, "episodes": episodes})
 
@@ -267,24 +276,29 @@ def score(task_name: str, seeds: int = 20, seed: int = 0,
     (e.g. ``expert`` for a task without one) and listed under ``"skipped"``."""
     if not (isinstance(seeds, int) and seeds > 0):
         raise ValueError(f"seeds must be a positive int, got {seeds!r}")
-    task = make_task(task_name, batch_size=seeds, overrides=overrides)
-    spec = task.spec
+    from dax_tasks.wrappers import VmapWrapper
+
+    env = make_task(task_name, overrides=overrides)
+    spec = env.spec
+    batch = VmapWrapper(env, batch_size=seeds)
+    reset, step = jax.jit(batch.reset), jax.jit(batch.step)
     keys = jnp.stack([jax.random.PRNGKey(seed + i) for i in range(seeds)])
     rand = jax.jit(jax.vmap(lambda k, t: _random_action(spec, k, t), in_axes=(0, None)))
     out = {"task": task_name, "seeds": list(range(seed, seed + seeds)),
-           "horizon": task.horizon, "skipped": []}
+           "horizon": env.horizon, "skipped": []}
     for policy in policies:
         try:
-            _check_policy(task, policy)
+            _check_policy(env, policy)
         except ValueError:
             out["skipped"].append(policy)
             continue
+        expert = jax.jit(batch.expert_action)
         t0 = time.perf_counter()
-        _, state = task.reset(keys)
+        _, state = reset(keys)
         r = None
-        for t in range(task.horizon):
-            action = task.expert_action(state) if policy == "expert" else rand(keys, t)
-            _, state, _, done, info = task.step(state, action)
+        for t in range(env.horizon):
+            action = expert(state) if policy == "expert" else rand(keys, t)
+            _, state, _, done, info = step(state, action)
             r = np.asarray(info["r_gt"], np.float64)
             if bool(np.all(np.asarray(done))):
                 break

@@ -1,4 +1,11 @@
-"""dax-physics: differentiable MLS-MPM and mass-spring cloth solvers in JAX (SI units, z up)."""
+"""dax-physics: differentiable MLS-MPM and mass-spring cloth solvers in JAX (SI units, z up).
+
+The top level holds the MPM solver (:mod:`dax_physics.mpm`) and what both solvers share
+(colliders, materials, :func:`checkpointed_scan`); the cloth solver is
+:mod:`dax_physics.cloth`. Both use the same verbs: ``step`` (one substep), ``rollout``
+(many, one checkpointed scan), ``check_state`` (raise if a state went bad), ``grasp`` and
+``release``. Benchmarks and the demo are in :mod:`dax_physics.tools`.
+"""
 
 from importlib.metadata import PackageNotFoundError, version
 
@@ -9,6 +16,7 @@ from .materials import Material, MaterialParams, dough, rope, tofu, water
 from .mpm import (
     MPMConfig,
     MPMState,
+    check_params,
     check_state,
     grasp,
     init_state,
@@ -16,8 +24,9 @@ from .mpm import (
     release,
     rollout,
     set_collider_velocity,
-    substep,
+    step,
 )
+from .scan import checkpointed_scan
 
 try:
     __version__ = version("dax-physics")
@@ -26,7 +35,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 __all__ = [
     "ColliderSpec", "ColliderState", "MPMConfig", "MPMState", "Material", "MaterialParams",
-    "check_state", "cloth", "colliders", "dough", "grasp", "init_state", "materials",
-    "max_stable_dt", "mpm", "pytree_dataclass", "release", "rollout", "rope", "sampling",
-    "set_collider_velocity", "static_field", "substep", "tofu", "water",
+    "check_params", "check_state", "checkpointed_scan", "cloth", "colliders", "dough",
+    "grasp", "init_state", "materials", "max_stable_dt", "mpm", "pytree_dataclass",
+    "release", "rollout", "rope", "sampling", "set_collider_velocity", "static_field",
+    "step", "tofu", "water",
 ]

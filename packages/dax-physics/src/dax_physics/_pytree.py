@@ -17,11 +17,14 @@ def static_field(**kwargs):
 
 
 def pytree_dataclass(cls):
-    """Make ``cls`` a frozen dataclass registered as a JAX pytree."""
+    """Make ``cls`` a frozen dataclass registered as a JAX pytree, with a ``replace(**changes)``
+    method (``dataclasses.replace``) unless the class defines its own."""
+    own_replace = "replace" in cls.__dict__
     cls = dataclasses.dataclass(frozen=True)(cls)
     data, meta = [], []
     for f in dataclasses.fields(cls):
         (meta if f.metadata.get("static", False) else data).append(f.name)
     jax.tree_util.register_dataclass(cls, data_fields=data, meta_fields=meta)
-    cls.replace = lambda self, **changes: dataclasses.replace(self, **changes)
+    if not own_replace:
+        cls.replace = lambda self, **changes: dataclasses.replace(self, **changes)
     return cls

@@ -217,9 +217,11 @@ def velocity_at(state: ColliderState, index: int, x):
     return state.lin_vel[index] + jnp.cross(jnp.broadcast_to(state.ang_vel[index], r.shape), r)
 
 
-def project_velocity(spec: ColliderSpec, v, v_c, n, inside):
+def project_velocity(spec: ColliderSpec, v, v_c, n, inside, friction=None):
     """Apply the contact condition of ``spec`` to velocities ``v`` at points flagged
-    ``inside`` (collider velocity ``v_c``, outward normal ``n``)."""
+    ``inside`` (collider velocity ``v_c``, outward normal ``n``). ``friction``: the
+    Coulomb coefficient as data (a scalar array, differentiable); ``None`` uses
+    ``spec.friction``."""
     if spec.mode == "sticky":
         return jnp.where(inside[..., None], v_c, v)
     v_rel = v - v_c
@@ -231,9 +233,10 @@ def project_velocity(spec: ColliderSpec, v, v_c, n, inside):
     else:  # separate
         apply = inside[..., None] & (vn < 0.0)
         normal_speed = -vn
-    if spec.friction > 0.0:
+    if friction is not None or spec.friction > 0.0:
+        mu = spec.friction if friction is None else friction
         vt_norm = _safe_norm(v_t)[..., None]
-        scale = jnp.maximum(vt_norm - spec.friction * normal_speed, 0.0) / vt_norm
+        scale = jnp.maximum(vt_norm - mu * normal_speed, 0.0) / vt_norm
         v_t = v_t * scale
     return jnp.where(apply, v_c + v_t, v)
 
@@ -247,21 +250,28 @@ def project_velocity(spec: ColliderSpec, v, v_c, n, inside):
 SURFACE_TOL = 1e-6
 
 
-def apply_colliders(specs, state: ColliderState, x, v, tol: float = 0.0, depth=None):
+def apply_colliders(specs, state: ColliderState, x, v, tol: float = 0.0, depth=None,
+                    friction=None):
     """Apply every collider's boundary condition to velocities ``v`` at points ``x``; a
     point touches a collider where its SDF is below ``margin + tol``. With ``depth`` [m],
     points more than ``depth`` inside a bowl's wall move with the bowl (see the module
-    docstring)."""
+    docstring). ``friction``: (K,) Coulomb coefficients as data, one per collider
+    (``None``: each spec's ``friction``)."""
     for k, spec in enumerate(specs):
-        v = _apply_one(spec, state, k, x, v, tol, depth)
+        v = _apply_one(spec, state, k, x, v, tol, depth, _coefficient(friction, k))
     return v
 
 
-def _apply_one(spec: ColliderSpec, state: ColliderState, k: int, x, v, tol, depth):
+def _coefficient(friction, k: int):
+    return None if friction is None else friction[k]
+
+
+def _apply_one(spec: ColliderSpec, state: ColliderState, k: int, x, v, tol, depth,
+               friction=None):
     phi, n = sdf(spec, state.pos[k], state.quat[k], x)
     inside = phi < spec.margin + tol
     v_c = velocity_at(state, k, x)
-    v = project_velocity(spec, v, v_c, n, inside)
+    v = project_velocity(spec, v, v_c, n, inside, friction)
     if depth is not None and spec.shape == "bowl":
         v = jnp.where((phi < -depth)[..., None], v_c, v)
     return v
@@ -288,7 +298,8 @@ def bounding_sphere(spec: ColliderSpec):
     return centre, radius + max(spec.margin, 0.0)
 
 
-def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, origin):
+def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, origin,
+                         friction=None):
     """:func:`apply_colliders` on the nodes of a grid window: ``v`` (prod(window), 3) are the
     velocities of nodes ``origin + (i, j, k)`` [cells], row-major over ``window``.
 
@@ -297,7 +308,7 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
     it cannot be inside the collider, so the result is the same. On Pour-Water this
     evaluates each bowl on 3.4k or 4.9k of the 23k nodes. Nodes within
     :data:`SURFACE_TOL` outside a surface count as touching it; nodes more than dx/2 inside
-    a bowl's wall move with it."""
+    a bowl's wall move with it. ``friction``: as for :func:`apply_colliders`."""
     window = tuple(int(w) for w in window)
     v4 = v.reshape(*window, 3)
     zero = jnp.zeros((), jnp.int32)
@@ -318,7 +329,8 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
         sub = jax.lax.dynamic_slice(v4, corner, (*side, 3)).reshape(-1, 3)
         idx = jnp.asarray(np.indices(side).reshape(3, -1).T, jnp.int32)
         x = (idx + start + origin).astype(v.dtype) * dx
-        sub = _apply_one(spec, state, k, x, sub, SURFACE_TOL, 0.5 * dx)
+        sub = _apply_one(spec, state, k, x, sub, SURFACE_TOL, 0.5 * dx,
+                         _coefficient(friction, k))
         v4 = jax.lax.dynamic_update_slice(v4, sub.reshape(*side, 3), corner)
     return v4.reshape(-1, 3)
 

@@ -130,10 +130,15 @@ def dough(youngs_modulus: float = 5.0e4, poisson_ratio: float = 0.3,
 
 @pytree_dataclass
 class MaterialParams:
-    """Differentiable numbers of a material table, one entry per material (shape (M,)).
+    """The differentiable numbers of an MPM scene: one entry per material (shape (M,)) and
+    one friction coefficient per collider (shape (K,)).
 
     density [kg/m^3], mu and lam: Lame parameters [Pa] (lam = K for fluids),
     viscosity [Pa s], yield_stress [Pa] (inf where not plastic).
+    friction: Coulomb coefficient [-] of each collider of the scene, in the order of
+        ``MPMConfig.colliders``; ``None`` means the coefficients of the static
+        :class:`~dax_physics.colliders.ColliderSpec` entries (:attr:`MPMConfig.params`
+        fills it in, so the friction is data there).
     """
 
     density: jnp.ndarray
@@ -141,9 +146,12 @@ class MaterialParams:
     lam: jnp.ndarray
     viscosity: jnp.ndarray
     yield_stress: jnp.ndarray
+    friction: jnp.ndarray | None = None
 
     @staticmethod
-    def from_materials(materials, dtype=jnp.float32) -> MaterialParams:
+    def from_materials(materials, dtype=jnp.float32, friction=None) -> MaterialParams:
+        """The numbers of the material table ``materials``; ``friction``: optional
+        per-collider coefficients (a sequence of floats)."""
         materials = tuple(materials)
         mu = [m.lame[0] for m in materials]
         lam = [m.lame[1] for m in materials]
@@ -154,9 +162,20 @@ class MaterialParams:
             viscosity=jnp.asarray([m.viscosity for m in materials], dtype),
             yield_stress=jnp.asarray(
                 [m.yield_stress if m.kind == "plastic" else np.inf for m in materials], dtype),
+            friction=None if friction is None else jnp.asarray(friction, dtype).reshape(-1),
         )
 
     def with_youngs_modulus(self, index: int, E, nu) -> MaterialParams:
         """Replace material ``index``'s (mu, lam) from E [Pa] and nu [-] (E may be traced)."""
         mu, lam = lame_parameters(E, nu)
         return self.replace(mu=self.mu.at[index].set(mu), lam=self.lam.at[index].set(lam))
+
+    def youngs_modulus(self, index: int):
+        """Young's modulus E [Pa] of material ``index`` from its Lame parameters."""
+        mu, lam = self.mu[index], self.lam[index]
+        return mu * (3 * lam + 2 * mu) / (lam + mu)
+
+    def wave_speed(self):
+        """Fastest (P-)wave or sound speed [m/s] of each material (M,):
+        ``sqrt((lam + 2 mu) / rho)``."""
+        return jnp.sqrt((self.lam + 2 * self.mu) / self.density)

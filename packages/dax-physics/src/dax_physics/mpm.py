@@ -40,6 +40,7 @@ import numpy as np
 from . import colliders as col
 from ._pytree import pytree_dataclass
 from .materials import Material, MaterialParams
+from .scan import checkpointed_scan
 
 #: Courant number used by the stability guard: dt <= CFL * dx / (c_max + v_max).
 CFL = 0.5
@@ -137,17 +138,51 @@ class MPMConfig:
 
     @property
     def params(self) -> MaterialParams:
-        """The material table's numbers as a differentiable :class:`MaterialParams`."""
-        return MaterialParams.from_materials(self.materials)
+        """The scene's numbers as a differentiable :class:`MaterialParams`: the material
+        table and the colliders' friction coefficients (build it once and reuse it)."""
+        return MaterialParams.from_materials(
+            self.materials, friction=[c.friction for c in self.colliders])
 
 
-def max_stable_dt(cfg: MPMConfig, materials=None) -> float:
+def max_stable_dt(cfg: MPMConfig, params: MaterialParams | None = None) -> float:
     """Largest stable substep [s]: ``CFL * dx / (c + max_speed)`` with ``c`` the fastest
-    elastic (P-) wave or sound speed of the material table. The ``CFL`` number 0.5 is
-    conservative for explicit MLS-MPM with quadratic B-splines."""
-    mats = cfg.materials if materials is None else materials
-    c = max(m.wave_speed for m in mats)
+    elastic (P-) wave or sound speed of the material table (of ``params`` when given: it
+    needs concrete arrays). The ``CFL`` number 0.5 is conservative for explicit MLS-MPM
+    with quadratic B-splines."""
+    if params is None:
+        c = max(m.wave_speed for m in cfg.materials)
+    else:
+        c = float(np.max(np.asarray(params.wave_speed())))
     return CFL * cfg.dx / (c + cfg.max_speed)
+
+
+def check_params(cfg: MPMConfig, params: MaterialParams) -> None:
+    """Raise ``ValueError`` naming the problem if ``params`` does not fit ``cfg`` or makes
+    its time step unstable: wrong shapes, non-finite or non-positive densities, negative
+    moduli, viscosities or friction coefficients, or ``cfg.dt`` above the largest stable
+    substep of these materials. Needs concrete arrays (call it outside ``jit``)."""
+    m, k = len(cfg.materials), len(cfg.colliders)
+    fields = {"density": m, "mu": m, "lam": m, "viscosity": m, "yield_stress": m}
+    if params.friction is not None:
+        fields["friction"] = k
+    for name, size in fields.items():
+        a = np.asarray(getattr(params, name))
+        if a.shape != (size,):
+            raise ValueError(f"MaterialParams.{name} must have shape ({size},) for this "
+                             f"scene, got {a.shape}")
+        if name != "yield_stress" and not np.all(np.isfinite(a)):
+            raise ValueError(f"MaterialParams.{name} contains NaN or inf: {a.tolist()}")
+        if name == "density" and not np.all(a > 0):
+            raise ValueError(f"MaterialParams.density must be > 0 kg/m^3, got {a.tolist()}")
+        if name != "density" and np.any(a < 0):
+            raise ValueError(f"MaterialParams.{name} must be >= 0, got {a.tolist()}")
+    limit = max_stable_dt(cfg, params)
+    if cfg.dt > limit:
+        raise ValueError(
+            f"unstable time step: dt = {cfg.dt:.3g} s exceeds the largest stable dt "
+            f"{limit:.3g} s for these material parameters (fastest wave speed "
+            f"{float(np.max(np.asarray(params.wave_speed()))):.3g} m/s); lower the moduli "
+            f"or raise the density")
 
 
 @pytree_dataclass
@@ -438,8 +473,9 @@ def _return_map(params: MaterialParams, mat, b):
 
 # ----------------------------------------------------------------------------- substep
 
-def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
-    """Advance the scene by one substep ``cfg.dt`` (pure; jit with ``cfg`` static)."""
+def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
+    """Advance the scene by one substep of ``cfg.dt`` seconds (pure; jit with ``cfg``
+    static). The colliders' friction is ``params.friction`` when set."""
     dt, dx = cfg.dt, cfg.dx
     inv_dx = 1.0 / dx
     dtype = state.x.dtype
@@ -515,7 +551,7 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
             gv = jnp.where((lo_wall & (gv < 0)) | (hi_wall & (gv > 0)), 0.0, gv)
     if cfg.colliders:
         gv = col.apply_colliders_grid(cfg.colliders, state.colliders, gv, dx, cfg.window,
-                                      origin)
+                                      origin, params.friction)
     gv = jnp.where(has_mass[:, None], gv, 0.0)
 
     # G2P: gather each particle's 3x3x3 block (padded to 4 channels: aligned rows gather
@@ -581,31 +617,18 @@ def substep(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState
 @functools.partial(jax.jit, static_argnums=(0, 3, 4))
 def rollout(cfg: MPMConfig, params: MaterialParams, state: MPMState, n_substeps: int,
             segment: int | None = None) -> MPMState:
-    """Run ``n_substeps`` substeps as a ``lax.scan``.
+    """Run ``n_substeps`` substeps of :func:`step` as one scan (jitted; ``cfg``,
+    ``n_substeps`` and ``segment`` are static).
 
-    segment: if given, the scan is split into segments of this many substeps, each wrapped
-        in ``jax.checkpoint``: reverse-mode memory then grows with the number of segments,
-        not substeps, at the cost of recomputing each segment once in the backward pass.
-        Gradients are identical either way. ``n_substeps`` must be a multiple of it.
+    segment: substeps per checkpointed segment (:func:`dax_physics.checkpointed_scan`,
+        whose remainder rule applies); reverse-mode memory then grows with the number of
+        segments, not substeps, at the cost of recomputing each segment once in the
+        backward pass. ``None``: no checkpointing. Forward values are the same either way.
     """
-    return _rollout(cfg, params, state, n_substeps, segment)
-
-
-def _rollout(cfg, params, state, n_substeps, segment=None):
     def body(s, _):
-        return substep(cfg, params, s), None
+        return step(cfg, params, s), None
 
-    if segment is None or segment >= n_substeps:
-        return jax.lax.scan(body, state, None, length=n_substeps)[0]
-    if n_substeps % segment:
-        raise ValueError(f"n_substeps {n_substeps} must be a multiple of segment {segment}")
-
-    @jax.checkpoint
-    def seg(s):
-        return jax.lax.scan(body, s, None, length=segment)[0]
-
-    return jax.lax.scan(lambda s, _: (seg(s), None), state, None,
-                        length=n_substeps // segment)[0]
+    return checkpointed_scan(body, state, length=n_substeps, segment=segment)[0]
 
 
 # ----------------------------------------------------------------------------- grasping

@@ -1,6 +1,6 @@
-"""Private helpers of the cloth tasks: the scene, the cloth meshes, the pick-and-place macro
-and the canonical scripted folds (see :mod:`dax_tasks.cloth_tasks` for the task
-documentation)."""
+"""Private helpers of the cloth tasks: the scene, the physics params, the cloth meshes, the
+pick-and-place macro and the canonical scripted folds (see :mod:`dax_tasks.cloth_tasks` for
+the task documentation)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_physics.cloth as dc
+from dax_physics import pytree_dataclass
 from dax_physics.cloth import mesh as dmesh
 
 #: Default T-shirt outline [m] (see :func:`dax_physics.cloth.tshirt_outline`).
@@ -28,10 +29,7 @@ class ClothScene:
     n: square cloth vertices per side (``n * n`` vertices).
     size: square cloth side [m].
     spacing: T-shirt grid spacing [m]; outline: T-shirt outline keywords (tuple of pairs).
-    density [kg/m^2], stretch / bend [N/m], damping [N s/m]: the mass-spring material
-        (:func:`dax_physics.cloth.make_cloth`; shear = stretch).
-    dt: substep [s] (checked against the stable bound when the cloth is built).
-    friction: Coulomb coefficient of cloth on the table (static; dynamic = 0.8 x).
+    dt: substep [s] (checked against the stable bound when the task is built).
     settle_substeps: substeps after the release in every action (the rest of
         ``spec.substeps`` carry the gripper).
     arc_height: the gripper path's peak height over the table-plane travel distance.
@@ -50,12 +48,7 @@ class ClothScene:
     size: float = 0.3
     spacing: float = 0.025
     outline: tuple = TSHIRT_OUTLINE
-    density: float = 0.2
-    stretch: float = 10.0
-    bend: float = 0.5
-    damping: float = 0.01
     dt: float = 1.0e-3
-    friction: float = 1.0
     settle_substeps: int = 300
     arc_height: float = 0.5
     grasp_radius: float = 0.25
@@ -72,7 +65,7 @@ class ClothScene:
                              f"valid: {', '.join(FOLD_PLANS)}")
         if self.shape == "square" and self.n < 3:
             raise ValueError(f"a square cloth needs n >= 3 vertices per side, got {self.n}")
-        for name in ("size", "spacing", "density", "dt", "grasp_radius"):
+        for name in ("size", "spacing", "dt", "grasp_radius"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.settle_substeps < 0:
@@ -101,17 +94,68 @@ def _cloth_np(scene: ClothScene):
     return v, f
 
 
+@pytree_dataclass
+class ClothParams:
+    """The cloth tasks' physics numbers (``params.physics``; scalars, SI units).
+
+    density: areal density [kg/m^2]; stretch, shear, bend: spring moduli [N/m] of the
+    structural, shear and bending springs (:func:`dax_physics.cloth.make_cloth`); damping:
+    dashpot modulus [N s/m]; friction_static, friction_dynamic: Coulomb coefficients [-]
+    of the cloth on the table.
+    """
+
+    density: jnp.ndarray
+    stretch: jnp.ndarray
+    shear: jnp.ndarray
+    bend: jnp.ndarray
+    damping: jnp.ndarray
+    friction_static: jnp.ndarray
+    friction_dynamic: jnp.ndarray
+
+    @staticmethod
+    def create(**values) -> ClothParams:
+        """Float32 params from :data:`DEFAULT_MATERIAL` with ``values`` replaced."""
+        unknown = sorted(set(values) - set(DEFAULT_MATERIAL))
+        if unknown:
+            raise ValueError(f"unknown cloth parameter(s) {unknown}; valid: "
+                             f"{sorted(DEFAULT_MATERIAL)}")
+        merged = {**DEFAULT_MATERIAL, **values}
+        return ClothParams(**{k: jnp.asarray(v, jnp.float32) for k, v in merged.items()})
+
+
+#: The cloth tasks' default material: 0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m,
+#: dashpot 0.01 N s/m, friction on the table 1.0 (static) and 0.8 (dynamic).
+DEFAULT_MATERIAL = {"density": 0.2, "stretch": 10.0, "shear": 10.0, "bend": 0.5,
+                    "damping": 0.01, "friction_static": 1.0, "friction_dynamic": 0.8}
+
+
 def make_cloth(scene: ClothScene) -> dc.Cloth:
-    """The :class:`dax_physics.cloth.Cloth` of the scene (constant arrays)."""
+    """The :class:`dax_physics.cloth.Cloth` of the scene with :data:`DEFAULT_MATERIAL`
+    (constant arrays; the table friction is the config's)."""
     v, f = _cloth_np(scene)
+    m = DEFAULT_MATERIAL
     with jax.ensure_compile_time_eval():
-        return dc.make_cloth(v, f, density=scene.density, stretch=scene.stretch,
-                             bend=scene.bend, damping=scene.damping)
+        return dc.make_cloth(v, f, density=m["density"], stretch=m["stretch"],
+                             shear=m["shear"], bend=m["bend"], damping=m["damping"])
+
+
+def cloth_with(base: dc.Cloth, params: ClothParams) -> dc.Cloth:
+    """``base`` (built with :data:`DEFAULT_MATERIAL`) with the material of ``params``: the
+    spring network scaled by the moduli relative to the defaults (exactly ``base`` at the
+    defaults) and the table friction as data."""
+    m = DEFAULT_MATERIAL
+    cloth = dc.scale_moduli(base, stretch=params.stretch / m["stretch"],
+                            shear=params.shear / m["shear"], bend=params.bend / m["bend"],
+                            damping=params.damping / m["damping"],
+                            density=params.density / m["density"])
+    return cloth.replace(table_friction=jnp.stack([params.friction_static,
+                                                   params.friction_dynamic]))
 
 
 def cloth_config(scene: ClothScene) -> dc.ClothConfig:
-    return dc.ClothConfig(dt=scene.dt, friction_static=scene.friction,
-                          friction_dynamic=0.8 * scene.friction, table_height=0.0)
+    m = DEFAULT_MATERIAL
+    return dc.ClothConfig(dt=scene.dt, friction_static=m["friction_static"],
+                          friction_dynamic=m["friction_dynamic"], table_height=0.0)
 
 
 @functools.lru_cache(maxsize=32)
@@ -157,18 +201,17 @@ def gripper_path(scene: ClothScene, start, place, n_move: int):
     return start + (place - start) * s[:, None] + lift[:, None] * up
 
 
-def pick_place(scene: ClothScene, substeps: int, state: dc.ClothState, action,
-               contact_adjustment: bool) -> dc.ClothState:
+def pick_place(scene: ClothScene, substeps: int, cloth: dc.Cloth, state: dc.ClothState,
+               action, contact_adjustment: bool) -> dc.ClothState:
     """One pick-and-place action ``(x, y, z, x', y', z')`` [m] as a single ``lax.scan`` of
-    ``substeps`` substeps: grasp at the pick point, carry along :func:`gripper_path` for
-    ``substeps - settle_substeps`` substeps, release, settle."""
+    ``substeps`` substeps of ``cloth``: grasp at the pick point, carry along
+    :func:`gripper_path` for ``substeps - settle_substeps`` substeps, release, settle."""
     n_settle = scene.settle_substeps
     n_move = substeps - n_settle
     if n_move < 1:
         raise ValueError(f"cloth tasks need substeps > settle_substeps = {n_settle}, "
                          f"got {substeps}")
     cfg = cloth_config(scene)
-    cloth = make_cloth(scene)
     pick, place = action[:3], action[3:]
     grip, start = grasp_set(scene, state.x, pick, contact_adjustment)
     path = gripper_path(scene, start, place, n_move)
@@ -260,8 +303,9 @@ def folded_vertices(scene: ClothScene, substeps: int) -> np.ndarray:
     check_scene(scene)
     plan = fold_plan(scene)
     with jax.ensure_compile_time_eval():
-        state = dc.ClothState.create(make_cloth(scene), n_grippers=1)
-        step = jax.jit(lambda s, a: pick_place(scene, substeps, s, a, True))
+        cloth = make_cloth(scene)
+        state = dc.ClothState.create(cloth, n_grippers=1)
+        step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
         for index, place in plan:
             state = step(state, plan_action(state.x, index, place))
         if plan:
@@ -277,8 +321,9 @@ def fold_prefix_vertices(scene: ClothScene, substeps: int, n: int) -> np.ndarray
     check_scene(scene)
     plan = fold_plan(scene)[:n]
     with jax.ensure_compile_time_eval():
-        state = dc.ClothState.create(make_cloth(scene), n_grippers=1)
-        step = jax.jit(lambda s, a: pick_place(scene, substeps, s, a, True))
+        cloth = make_cloth(scene)
+        state = dc.ClothState.create(cloth, n_grippers=1)
+        step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
         for index, place in plan:
             state = step(state, plan_action(state.x, index, place))
         return np.asarray(state.x, np.float32)

@@ -4,11 +4,13 @@ Scene (SI units, z up). One mass-spring cloth (:mod:`dax_physics.cloth`, general
 path) on a table at z = 0 with Coulomb friction (static 1.0, dynamic 0.8), no
 self-collision (see "Known limitations"). The square cloth is 0.3 m x 0.3 m with 11 x 11
 vertices (3 cm spacing, union-jack triangulation); the T-shirt is a 0.2 m wide, 0.25 m long
-body with 8 cm sleeves on a 2.5 cm grid (:func:`dax_physics.cloth.tshirt_mesh`). Material:
-0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m, dashpot 0.01 N s/m per spring; substep
-``dt`` = 1 ms (the Gershgorin bound of these springs and masses is 1.1 ms for the square
-cloth; checked when a task is built). One gripper. The canonical (target) pose is the cloth
-centred on the table centre, the origin.
+body with 8 cm sleeves on a 2.5 cm grid (:func:`dax_physics.cloth.tshirt_mesh`). Material
+(``params.physics``, a :class:`ClothParams`, so it can be changed, batched or
+differentiated without recompiling): 0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m,
+dashpot 0.01 N s/m per spring; substep ``dt`` = 1 ms (the Gershgorin bound of these springs
+and masses is 1.1 ms for the square cloth; checked when a task is built, and for other
+params by :func:`dax_tasks.checks.check_params`). One gripper. The canonical (target) pose
+is the cloth centred on the table centre, the origin.
 
 Initial state. Fold tasks: the flat cloth. Unfold tasks: the canonical folded cloth (the
 scripted fold below, simulated once per scene and cached). Either is then moved by a random
@@ -51,11 +53,11 @@ the raw pick point is used: a pick with no vertex within the grasp radius holds 
 the cloth only settles, and the action gradient is exactly zero (tested).
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the cloth's vertices
-and the goal's; ``lam = 10 /m``, so ``r_gt = exp(-10 D)``. The flat cloth at the target is
+and the goal's; λ = 10 /m, so ``r_gt = exp(-10 D)``. The flat cloth at the target is
 about 0.09 m from the Fold-Cloth-1 goal (r_gt about 0.4) while the expert's fold of a
 randomly placed cloth is about 0.015 m (r_gt about 0.86).
 
-Experts (privileged state: ``state.physics``, ``state.goal``, ``state.t``). Fold tasks:
+Experts (privileged state: ``state.physics``, ``state.t`` and the goal ``params.goal``). Fold tasks:
 at step t < number of folds, fold t of the canonical plan done on the cloth where it lies
 (pick the plan's vertex where it is now, place it at the plan's place point moved by the
 cloth's rigid pose, fitted in the table plane on all vertices against the canonical cloth
@@ -81,11 +83,12 @@ import numpy as np
 import dax_physics.cloth as dc
 
 from . import _cloth
-from ._cloth import ClothScene
-from .template import TaskDef, TaskSpec
+from ._cloth import DEFAULT_MATERIAL, ClothParams, ClothScene
+from .env import Env
+from .spec import TaskSpec
 
-__all__ = ["FOLD_CLOTH1", "FOLD_CLOTH3", "FOLD_TSHIRT", "UNFOLD_CLOTH1", "UNFOLD_CLOTH3",
-           "ClothScene", "expert_action", "goal", "init", "apply_action"]
+__all__ = ["DEFAULT_MATERIAL", "FOLD_CLOTH1", "FOLD_CLOTH3", "FOLD_TSHIRT", "UNFOLD_CLOTH1",
+           "UNFOLD_CLOTH3", "ClothParams", "ClothScene", "ClothTask", "replace_scene"]
 
 #: Height range of pick and place points [m] (the table is z = 0).
 Z_MAX = 0.1
@@ -98,39 +101,6 @@ def start_vertices(spec: TaskSpec) -> np.ndarray:
     if scene.unfold:
         return _cloth.folded_vertices(scene, spec.substeps)
     return _cloth.flat_vertices(scene)
-
-
-def goal(spec: TaskSpec):
-    """The goal vertices (V, 3) [m]: the canonical fold (fold tasks) or the flat cloth at
-    the target (unfold tasks)."""
-    scene = spec.scene
-    if scene.unfold:
-        return _cloth.flat_vertices(scene)
-    return _cloth.folded_vertices(scene, spec.substeps)
-
-
-def init(key, spec: TaskSpec):
-    """The start cloth (:func:`start_vertices`) at a random rigid pose, at rest."""
-    _cloth.check_scene(spec.scene)
-    x0 = jnp.asarray(start_vertices(spec))
-    cloth = _cloth.make_cloth(spec.scene)
-    return dc.ClothState.create(cloth, x=_cloth.rigid_pose(key, spec.scene, x0),
-                                n_grippers=1)
-
-
-def apply_action(spec: TaskSpec, physics, action):
-    """One pick-and-place macro (``spec.substeps`` substeps, one ``lax.scan``)."""
-    return _cloth.pick_place(spec.scene, spec.substeps, physics, action,
-                             spec.contact_adjustment)
-
-
-def object_points(spec: TaskSpec, physics):
-    return physics.x
-
-
-def end_effector(spec: TaskSpec, physics):
-    """The gripper position [m] (3,)."""
-    return physics.gripper_pos[0]
 
 
 def _fold_states(scene: ClothScene, substeps: int) -> np.ndarray:
@@ -154,48 +124,118 @@ def _planar_pose(x, ref):
     return rot, mx - rot @ mr
 
 
-def expert_action(spec: TaskSpec, physics, goal_points, t):
-    """The scripted expert's action (see the module docstring); pure and jittable."""
-    scene = spec.scene
-    x = physics.x
-    plan = _cloth.fold_plan(scene)
-    idx = jnp.asarray([i for i, _ in plan], jnp.int32)
-    n = len(plan)
-    # The cloth's rigid pose is fitted on every vertex against the canonical cloth with as
-    # many folds done (physics on the table does not depend on the pose, so the cloth is
-    # that state rotated and shifted). Fitting against the flat cloth on the vertices the
-    # folds leave in place failed from the third fold on: none stays put in every fold,
-    # and the pose fitted before Fold-Cloth-3's last fold was 0.37 rad off.
-    refs = jnp.asarray(_fold_states(scene, spec.substeps), x.dtype)
-    if scene.unfold:
-        # Undo the folds in reverse (pick the vertex fold j placed, put it where it was
-        # before fold j, in the cloth's fitted pose), then pick the vertex farthest from
-        # its goal and put it there. Measured on seeds 0-7, Unfold-Cloth-3: 0.830 against
-        # 0.778 with the farthest-vertex rule alone (it stalls on a crumpled corner);
-        # Unfold-Cloth-1: 0.872 against 0.884 (the same within the spread).
-        err = jnp.sum((x - goal_points) ** 2, axis=1)
-        i = jnp.argmax(err)
-        farthest = jnp.concatenate([x[i], goal_points[i]])
-        j = jnp.clip(n - 1 - t, 0, n - 1)  # the fold to undo at step t
-        rot, shift = _planar_pose(x, refs[jnp.clip(n - t, 0, n)])
-        before = refs[j][idx[j]]
-        place = jnp.concatenate([rot @ before[:2] + shift, before[2:]])
-        return jnp.where(t < n, jnp.concatenate([x[idx[j]], place]), farthest)
-    k = jnp.minimum(t, n - 1)
-    rot, shift = _planar_pose(x, refs[k])
+class ClothTask(Env):
+    """The five cloth tasks (see the module docstring). ``params.physics`` is a
+    :class:`ClothParams` (density, spring moduli, dashpots, table friction)."""
 
-    def posed(p):
-        return jnp.concatenate([rot @ p[:2] + shift, p[2:]])
+    LAM = 10.0
 
-    places = jnp.asarray(np.stack([p for _, p in plan]), x.dtype)
-    fold = jnp.concatenate([x[idx[k]], posed(places[k])])
-    noop = jnp.concatenate([x[idx[-1]], x[idx[-1]]])
-    return jnp.where(t < len(plan), fold, noop)
+    def __init__(self, spec: TaskSpec):
+        super().__init__(spec)
+        scene = spec.scene
+        _cloth.check_scene(scene)
+        if spec.substeps <= scene.settle_substeps:
+            raise ValueError(f"cloth tasks need substeps > settle_substeps = "
+                             f"{scene.settle_substeps}, got {spec.substeps}")
+        self.cfg = _cloth.cloth_config(scene)
+        #: The cloth with the default material (constant arrays).
+        self.base_cloth = _cloth.make_cloth(scene)
 
+    @property
+    def substep_dt(self) -> float:
+        return self.cfg.dt
 
-def expert(spec: TaskSpec, state):
-    """The template's expert hook: :func:`expert_action` on the episode state."""
-    return expert_action(spec, state.physics, state.goal, state.t)
+    def default_physics_params(self):
+        return ClothParams.create()
+
+    def cloth(self, params) -> dc.Cloth:
+        """The :class:`dax_physics.cloth.Cloth` with the material of ``params.physics``."""
+        return _cloth.cloth_with(self.base_cloth, params.physics)
+
+    def check_physics_params(self, physics) -> None:
+        super().check_physics_params(physics)
+        for name in ("density", "stretch", "shear", "bend"):
+            if not float(getattr(physics, name)) > 0:
+                raise ValueError(f"cloth {name} must be > 0, got {float(getattr(physics, name))}")
+        for name in ("damping", "friction_static", "friction_dynamic"):
+            if float(getattr(physics, name)) < 0:
+                raise ValueError(f"cloth {name} must be >= 0, got {float(getattr(physics, name))}")
+        cloth = _cloth.cloth_with(self.base_cloth, physics)
+        try:
+            dc.check_stable(self.cfg, cloth)
+        except ValueError as err:
+            raise ValueError(f"unstable time step for these cloth parameters: {err}") from None
+
+    def init(self, key, params):
+        """The start cloth (:func:`start_vertices`) at a random rigid pose, at rest."""
+        x0 = jnp.asarray(start_vertices(self.spec))
+        return dc.ClothState.create(self.base_cloth,
+                                    x=_cloth.rigid_pose(key, self.spec.scene, x0),
+                                    n_grippers=1)
+
+    def apply_action(self, physics, action, params):
+        """One pick-and-place macro (``spec.substeps`` substeps, one ``lax.scan``)."""
+        return _cloth.pick_place(self.spec.scene, self.spec.substeps, self.cloth(params),
+                                 physics, action, self.spec.contact_adjustment)
+
+    def canonical_goal(self) -> np.ndarray:
+        """The goal vertices (V, 3) [m]: the canonical fold (fold tasks) or the flat cloth
+        at the target (unfold tasks)."""
+        scene = self.spec.scene
+        if scene.unfold:
+            return _cloth.flat_vertices(scene)
+        return _cloth.folded_vertices(scene, self.spec.substeps)
+
+    def object_points(self, physics):
+        return physics.x
+
+    def end_effector(self, physics):
+        """The gripper position [m] (3,)."""
+        return physics.gripper_pos[0]
+
+    @property
+    def object_faces(self):
+        """The cloth mesh's triangles (F, 3) (NumPy)."""
+        return np.asarray(self.base_cloth.faces)
+
+    def expert(self, state, params):
+        """The scripted expert's action (see the module docstring); pure and jittable."""
+        scene = self.spec.scene
+        x, goal_points, t = state.physics.x, params.goal, state.t
+        plan = _cloth.fold_plan(scene)
+        idx = jnp.asarray([i for i, _ in plan], jnp.int32)
+        n = len(plan)
+        # The cloth's rigid pose is fitted on every vertex against the canonical cloth with
+        # as many folds done (physics on the table does not depend on the pose, so the
+        # cloth is that state rotated and shifted). Fitting against the flat cloth on the
+        # vertices the folds leave in place failed from the third fold on: none stays put
+        # in every fold, and the pose fitted before Fold-Cloth-3's last fold was 0.37 rad
+        # off.
+        refs = jnp.asarray(_fold_states(scene, self.spec.substeps), x.dtype)
+        if scene.unfold:
+            # Undo the folds in reverse (pick the vertex fold j placed, put it where it was
+            # before fold j, in the cloth's fitted pose), then pick the vertex farthest from
+            # its goal and put it there. Measured on seeds 0-7, Unfold-Cloth-3: 0.830
+            # against 0.778 with the farthest-vertex rule alone (it stalls on a crumpled
+            # corner); Unfold-Cloth-1: 0.872 against 0.884 (the same within the spread).
+            err = jnp.sum((x - goal_points) ** 2, axis=1)
+            i = jnp.argmax(err)
+            farthest = jnp.concatenate([x[i], goal_points[i]])
+            j = jnp.clip(n - 1 - t, 0, n - 1)  # the fold to undo at step t
+            rot, shift = _planar_pose(x, refs[jnp.clip(n - t, 0, n)])
+            before = refs[j][idx[j]]
+            place = jnp.concatenate([rot @ before[:2] + shift, before[2:]])
+            return jnp.where(t < n, jnp.concatenate([x[idx[j]], place]), farthest)
+        k = jnp.minimum(t, n - 1)
+        rot, shift = _planar_pose(x, refs[k])
+
+        def posed(p):
+            return jnp.concatenate([rot @ p[:2] + shift, p[2:]])
+
+        places = jnp.asarray(np.stack([p for _, p in plan]), x.dtype)
+        fold = jnp.concatenate([x[idx[k]], posed(places[k])])
+        noop = jnp.concatenate([x[idx[-1]], x[idx[-1]]])
+        return jnp.where(t < len(plan), fold, noop)
 
 
 def _spec(name: str, horizon: int, scene: ClothScene, substeps: int) -> TaskSpec:
@@ -204,22 +244,15 @@ def _spec(name: str, horizon: int, scene: ClothScene, substeps: int) -> TaskSpec
     high = (r, r, Z_MAX)
     return TaskSpec(name=name, horizon=horizon, action_kind="pick_place",
                     action_low=low + low, action_high=high + high, substeps=substeps,
-                    distance="l2", lam=10.0, aux_reward=False, contact_adjustment=True,
-                    obs_stride=1, scene=scene)
+                    distance="l2", contact_adjustment=True, obs_stride=1, scene=scene)
 
 
-def _task(name: str, horizon: int, substeps: int = 700, **scene) -> TaskDef:
-    spec = _spec(name, horizon, ClothScene(**scene), substeps)
-    return TaskDef(spec=spec, init=init, apply_action=apply_action, goal=goal,
-                   object_points=object_points, end_effector=end_effector, expert=expert)
-
-
-FOLD_CLOTH1 = _task("fold_cloth1", 3, folds="diag1")
-FOLD_CLOTH3 = _task("fold_cloth3", 4, folds="diag3")
-FOLD_TSHIRT = _task("fold_tshirt", 4, substeps=1000, shape="tshirt", folds="tshirt",
-                    dt=4.5e-4, settle_substeps=200)
-UNFOLD_CLOTH1 = _task("unfold_cloth1", 10, folds="diag1", unfold=True)
-UNFOLD_CLOTH3 = _task("unfold_cloth3", 10, folds="diag3", unfold=True)
+FOLD_CLOTH1 = _spec("fold_cloth1", 3, ClothScene(folds="diag1"), 700)
+FOLD_CLOTH3 = _spec("fold_cloth3", 4, ClothScene(folds="diag3"), 700)
+FOLD_TSHIRT = _spec("fold_tshirt", 4, ClothScene(shape="tshirt", folds="tshirt", dt=4.5e-4,
+                                                 settle_substeps=200), 1000)
+UNFOLD_CLOTH1 = _spec("unfold_cloth1", 10, ClothScene(folds="diag1", unfold=True), 700)
+UNFOLD_CLOTH3 = _spec("unfold_cloth3", 10, ClothScene(folds="diag3", unfold=True), 700)
 
 
 def replace_scene(spec: TaskSpec, **changes) -> TaskSpec:

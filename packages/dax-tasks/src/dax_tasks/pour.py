@@ -16,6 +16,10 @@ whole domain is simulated (no moving window: spilled liquid may spread anywhere 
   each) replacing the water where they sit; 285 water + 81 chunk particles. E is chosen so
   the P-wave speed (5.1 m/s) stays near water's (4.5 m/s) and the step does not shrink;
   a chunk's strain under its own weight is below 1 %.
+* The materials (:data:`WATER`, :data:`CHUNK`) and the bowls' friction (0.2) are
+  ``params.physics`` (a :class:`dax_physics.MaterialParams`: material 0 water, material 1
+  the chunks), so viscosity, bulk modulus or friction can be changed, batched or
+  differentiated without recompiling.
 
 Speed (batch 1, 2-core CPU, ``python -m dax_tasks.bench --tasks pour_water,pour_soup
 --batch 1``): 0.019 s (water) and 0.026 s (soup) per environment step, 0.07 s / 0.13 s
@@ -46,7 +50,7 @@ of particle i to the target bowl's cavity (a cylinder of the inner radius from t
 bottom to the rim, grown by ``dx/2`` for particles resting against the walls), 0 inside:
 ``d = sqrt(relu(rho - r_in)^2 + relu(z_bot - z)^2 + relu(z - z_rim)^2 + eps) - sqrt(eps)``.
 For the soup the chunks' particles count like water's (the ingredients must go too).
-``lam = 20 /m``: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
+λ = 20 /m: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
 about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
 scripted expert ends a Pour-Water episode at 0.950 +- 0.003 (seeds 0-19; 91-94 % of the
 particles in the cavity, the rest splashed onto the table) and a Pour-Soup episode at 1.0
@@ -73,16 +77,24 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
+    check_params,
+    checkpointed_scan,
     init_state,
     sampling,
-    substep,
+    step,
 )
 from dax_physics.colliders import quat_to_matrix
 
-from .template import TaskDef, TaskSpec, checkpointed_substeps
+from .env import Env
+from .spec import TaskSpec
 
 SOURCE, TARGET = 0, 1
 _EPS = 1e-10
+#: Default materials (``params.physics``): water (material 0) and the soup's chunks (1).
+WATER = Material("fluid", 1000.0, bulk_modulus=2.0e4, viscosity=1.0e-3)
+CHUNK = Material("elastic", 1050.0, youngs_modulus=2.0e4, poisson_ratio=0.3)
+#: Default Coulomb coefficient of both bowls (``params.physics.friction``).
+BOWL_FRICTION = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,17 +105,11 @@ class PourScene:
     dt: float = 0.025 / 30               # substep [s]
     domain: tuple = (34, 24, 28)         # cells (whole domain simulated)
     ppc: int = 8                         # particles per cell
-    bulk_modulus: float = 2.0e4          # water K [Pa]
-    viscosity: float = 1.0e-3            # water eta [Pa s]
     fill_height: float = 0.025           # water depth in the source cavity [m]
     n_chunks: int = 0                    # solid ingredients (0: water only)
     chunk_size: float = 0.015            # cube side [m]
-    chunk_youngs_modulus: float = 2.0e4  # [Pa]
-    chunk_poisson_ratio: float = 0.3
-    chunk_density: float = 1050.0        # [kg/m^3]
     source_bowl: tuple = (0.05, 0.06, 0.02)
     target_bowl: tuple = (0.06, 0.06, 0.02)
-    bowl_friction: float = 0.2
     target_xy: tuple = (0.23, 0.12)      # target bowl centre [m]
     source_wrist: tuple = (0.09, 0.12, 0.17)  # initial wrist (rim centre) [m]
     init_range: tuple = (0.02, 0.02, 0.01)    # uniform random wrist offset [m]
@@ -121,15 +127,11 @@ class PourScene:
 
 
 def mpm_config(scene: PourScene) -> MPMConfig:
-    mats = [Material("fluid", 1000.0, bulk_modulus=scene.bulk_modulus,
-                     viscosity=scene.viscosity)]
-    if scene.n_chunks:
-        mats.append(Material("elastic", scene.chunk_density,
-                             youngs_modulus=scene.chunk_youngs_modulus,
-                             poisson_ratio=scene.chunk_poisson_ratio))
+    """The MPM configuration of the scene (raises if ``dt`` is unstable)."""
+    mats = [WATER] + ([CHUNK] if scene.n_chunks else [])
     colliders = (
-        ColliderSpec("bowl", scene.source_bowl, mode="separate", friction=scene.bowl_friction),
-        ColliderSpec("bowl", scene.target_bowl, mode="separate", friction=scene.bowl_friction),
+        ColliderSpec("bowl", scene.source_bowl, mode="separate", friction=BOWL_FRICTION),
+        ColliderSpec("bowl", scene.target_bowl, mode="separate", friction=BOWL_FRICTION),
     )
     return MPMConfig(materials=tuple(mats), dx=scene.dx, dt=scene.dt, domain=scene.domain,
                      walls="slip", colliders=colliders, max_speed=scene.max_speed)
@@ -171,24 +173,6 @@ def _target_pos(scene: PourScene):
     return [scene.target_xy[0], scene.target_xy[1], scene.floor_z]
 
 
-def init(key, spec: TaskSpec):
-    """The source bowl at a random offset from ``source_wrist``, upright, contents at rest."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    x, mat, _, vol = contents(scene)
-    # upright source bowl: collider origin (bottom centre) one bowl height below the wrist
-    base = np.asarray(scene.source_wrist) - np.array([0.0, 0.0, scene.source_bowl[1]])
-    cav = base + np.array([0.0, 0.0, scene.source_bowl[2]])
-    colliders = ColliderState.create(np.stack([base, np.asarray(_target_pos(scene))]))
-    template = init_state(cfg, x + cav.astype(np.float32), mat=mat, vol=vol,
-                          colliders=colliders)
-    rng = jnp.asarray(scene.init_range, jnp.float32)
-    off = jax.random.uniform(key, (3,), minval=-1.0, maxval=1.0) * rng
-    cs = template.colliders
-    return template.replace(x=template.x + off,
-                            colliders=cs.replace(pos=cs.pos.at[SOURCE].add(off)))
-
-
 def tilt(colliders) -> jnp.ndarray:
     """The source bowl's tilt about the world y axis [rad] (its only rotation)."""
     q = colliders.quat[SOURCE]
@@ -201,34 +185,6 @@ def wrist(scene: PourScene, colliders):
     return colliders.pos[SOURCE] + R[:, 2] * scene.source_bowl[1]
 
 
-def apply_action(spec: TaskSpec, physics, action):
-    """Hold ``(vx, vy, vz, omega)`` for ``spec.substeps`` substeps (see module docstring)."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    params = cfg.params
-    T = spec.substeps * scene.dt
-    w0 = wrist(scene, physics.colliders)
-    th0 = tilt(physics.colliders)
-    lo, hi = jnp.asarray(scene.wrist_low), jnp.asarray(scene.wrist_high)
-    v = jnp.clip(action[:3], (lo - w0) / T, (hi - w0) / T)
-    omega = jnp.clip(action[3], (scene.tilt_range[0] - th0) / T,
-                     (scene.tilt_range[1] - th0) / T)
-    ang = jnp.stack([jnp.zeros_like(omega), omega, jnp.zeros_like(omega)])
-
-    def body(s, _):
-        cs = s.colliders
-        w = wrist(scene, cs)
-        lin = v + jnp.cross(ang, cs.pos[SOURCE] - w)
-        cs = cs.replace(lin_vel=cs.lin_vel.at[SOURCE].set(lin),
-                        ang_vel=cs.ang_vel.at[SOURCE].set(ang))
-        return substep(cfg, params, s.replace(colliders=cs))
-
-    physics = checkpointed_substeps(body, physics, spec.substeps, scene.segment)
-    cs = physics.colliders
-    return physics.replace(colliders=cs.replace(lin_vel=jnp.zeros_like(cs.lin_vel),
-                                                ang_vel=jnp.zeros_like(cs.ang_vel)))
-
-
 def _cavity(scene: PourScene, physics):
     r_out, h, wall = scene.target_bowl
     base = physics.colliders.pos[TARGET]
@@ -236,9 +192,9 @@ def _cavity(scene: PourScene, physics):
     return base, r_out - wall + tol, base[2] + wall - tol, base[2] + h
 
 
-def particle_distance(spec: TaskSpec, physics):
+def particle_distance(scene: PourScene, physics):
     """Per-particle smooth distance [m] to the target bowl's cavity (0 inside) (N,)."""
-    base, r_in, z_bot, z_rim = _cavity(spec.scene, physics)
+    base, r_in, z_bot, z_rim = _cavity(scene, physics)
     x = physics.x
     rho = jnp.sqrt(jnp.sum((x[:, :2] - base[:2]) ** 2, axis=1) + _EPS)
     a = jax.nn.relu(rho - r_in)
@@ -246,79 +202,137 @@ def particle_distance(spec: TaskSpec, physics):
     return jnp.sqrt(a * a + b * b + _EPS) - math.sqrt(_EPS)
 
 
-def distance(spec: TaskSpec, physics, goal):
-    """``D`` [m]: the mean distance of the particles to the target cavity (the contents
-    not transferred); ``goal`` is not used (see the module docstring)."""
-    return jnp.mean(particle_distance(spec, physics))
+class Pour(Env):
+    """Pour-Water and Pour-Soup (see the module docstring). ``params.physics`` is the
+    scene's :class:`dax_physics.MaterialParams`: water (and the chunks) and the bowls'
+    friction."""
 
+    LAM = 20.0
 
-def goal(spec: TaskSpec):
-    """N particles packed on a lattice in the target cavity from the bottom up (N, 3)."""
-    scene = spec.scene
-    x0, _, _, vol = contents(scene)
-    n = len(x0)
-    r_out, h, wall = scene.target_bowl
-    r_in = r_out - wall - 0.25 * scene.dx
-    height = 2.0 * n * vol / (math.pi * r_in ** 2) + 2 * scene.dx
-    base = np.asarray(_target_pos(scene)) + np.array([0.0, 0.0, wall])
-    pts, _ = sampling.cylinder(base, r_in, height, scene.dx, ppc=scene.ppc, seed=0, jitter=0.0)
-    order = np.lexsort((pts[:, 1], pts[:, 0], pts[:, 2]))
-    return np.asarray(pts[order[:n]], np.float32)
+    def __init__(self, spec: TaskSpec):
+        super().__init__(spec)
+        scene = spec.scene
+        self.cfg = mpm_config(scene)
+        self._physics_params = self.cfg.params
+        x, mat, _, vol = contents(scene)
+        # upright source bowl: collider origin (bottom centre) one bowl height below the
+        # wrist
+        base = np.asarray(scene.source_wrist) - np.array([0.0, 0.0, scene.source_bowl[1]])
+        cav = base + np.array([0.0, 0.0, scene.source_bowl[2]])
+        colliders = ColliderState.create(np.stack([base, np.asarray(_target_pos(scene))]))
+        self._template = init_state(self.cfg, x + cav.astype(np.float32), mat=mat, vol=vol,
+                                    colliders=colliders)
 
+    @property
+    def substep_dt(self) -> float:
+        return self.cfg.dt
 
-def expert_action(spec: TaskSpec, physics, t):
-    """Scripted pour: drive the wrist to the pour point (``pour_offset`` from the target
-    bowl's centre at the table), tilt to ``pour_angle`` once within 2 cm of it, hold, and
-    tilt back to upright in the last steps of the horizon. Pure and jittable."""
-    scene = spec.scene
-    T = spec.substeps * scene.dt
-    cs = physics.colliders
-    w = wrist(scene, cs)
-    th = tilt(cs)
-    p = jnp.asarray([scene.target_xy[0] + scene.pour_offset[0],
-                     scene.target_xy[1] + scene.pour_offset[1], scene.pour_offset[2]])
-    err = p - w
-    v = err / (2.0 * T)
-    near = jnp.sqrt(jnp.sum(err[:2] ** 2)) < 0.02
-    w_max = spec.action_high[3]
-    back = math.ceil(scene.pour_angle / (w_max * T)) + 2
-    pouring = near | (th > 0.2)
-    th_goal = jnp.where((t < spec.horizon - back) & pouring, scene.pour_angle, 0.0)
-    omega = (th_goal - th) / T
-    action = jnp.concatenate([v, omega[None]])
-    return jnp.clip(action, jnp.asarray(spec.action_low), jnp.asarray(spec.action_high))
+    def default_physics_params(self):
+        return self._physics_params
 
+    def check_physics_params(self, physics) -> None:
+        check_params(self.cfg, physics)
 
-def expert(spec: TaskSpec, state):
-    return expert_action(spec, state.physics, state.t)
+    def init(self, key, params):
+        """The source bowl at a random offset from ``source_wrist``, upright, contents at
+        rest."""
+        rng = jnp.asarray(self.spec.scene.init_range, jnp.float32)
+        off = jax.random.uniform(key, (3,), minval=-1.0, maxval=1.0) * rng
+        template = self._template
+        cs = template.colliders
+        return template.replace(x=template.x + off,
+                                colliders=cs.replace(pos=cs.pos.at[SOURCE].add(off)))
 
+    def apply_action(self, physics, action, params):
+        """Hold ``(vx, vy, vz, omega)`` for ``spec.substeps`` substeps (see the module
+        docstring)."""
+        scene, cfg = self.spec.scene, self.cfg
+        material = params.physics
+        T = self.dt
+        w0 = wrist(scene, physics.colliders)
+        th0 = tilt(physics.colliders)
+        lo, hi = jnp.asarray(scene.wrist_low), jnp.asarray(scene.wrist_high)
+        v = jnp.clip(action[:3], (lo - w0) / T, (hi - w0) / T)
+        omega = jnp.clip(action[3], (scene.tilt_range[0] - th0) / T,
+                         (scene.tilt_range[1] - th0) / T)
+        ang = jnp.stack([jnp.zeros_like(omega), omega, jnp.zeros_like(omega)])
 
-def object_points(spec: TaskSpec, physics):
-    return physics.x
+        def body(s, _):
+            cs = s.colliders
+            w = wrist(scene, cs)
+            lin = v + jnp.cross(ang, cs.pos[SOURCE] - w)
+            cs = cs.replace(lin_vel=cs.lin_vel.at[SOURCE].set(lin),
+                            ang_vel=cs.ang_vel.at[SOURCE].set(ang))
+            return step(cfg, material, s.replace(colliders=cs)), None
 
+        physics = checkpointed_scan(body, physics, jnp.arange(self.spec.substeps,
+                                                              dtype=jnp.int32),
+                                    segment=scene.segment)[0]
+        cs = physics.colliders
+        return physics.replace(colliders=cs.replace(lin_vel=jnp.zeros_like(cs.lin_vel),
+                                                    ang_vel=jnp.zeros_like(cs.ang_vel)))
 
-def end_effector(spec: TaskSpec, physics):
-    """The wrist (source bowl's rim centre) [m] (3,)."""
-    return wrist(spec.scene, physics.colliders)
+    def distance(self, physics, goal):
+        """``D`` [m]: the mean distance of the particles to the target cavity (the contents
+        not transferred); ``goal`` is not used (see the module docstring)."""
+        return jnp.mean(particle_distance(self.spec.scene, physics))
 
+    def canonical_goal(self) -> np.ndarray:
+        """N particles packed on a lattice in the target cavity from the bottom up
+        (N, 3)."""
+        scene = self.spec.scene
+        x0, _, _, vol = contents(scene)
+        n = len(x0)
+        r_out, h, wall = scene.target_bowl
+        r_in = r_out - wall - 0.25 * scene.dx
+        height = 2.0 * n * vol / (math.pi * r_in ** 2) + 2 * scene.dx
+        base = np.asarray(_target_pos(scene)) + np.array([0.0, 0.0, wall])
+        pts, _ = sampling.cylinder(base, r_in, height, scene.dx, ppc=scene.ppc, seed=0,
+                                   jitter=0.0)
+        order = np.lexsort((pts[:, 1], pts[:, 0], pts[:, 2]))
+        return np.asarray(pts[order[:n]], np.float32)
 
-def observe(spec: TaskSpec, physics):
-    """Every ``obs_stride``-th particle, the wrist [m] and the tilt [rad], flattened."""
-    pts = physics.x[:: spec.obs_stride]
-    return jnp.concatenate([pts.reshape(-1), end_effector(spec, physics),
-                            tilt(physics.colliders)[None]])
+    def expert(self, state, params):
+        """Scripted pour: drive the wrist to the pour point (``pour_offset`` from the target
+        bowl's centre at the table), tilt to ``pour_angle`` once within 2 cm of it, hold,
+        and tilt back to upright in the last steps of the horizon. Pure and jittable."""
+        scene, spec = self.spec.scene, self.spec
+        T = self.dt
+        cs = state.physics.colliders
+        w = wrist(scene, cs)
+        th = tilt(cs)
+        p = jnp.asarray([scene.target_xy[0] + scene.pour_offset[0],
+                         scene.target_xy[1] + scene.pour_offset[1], scene.pour_offset[2]])
+        err = p - w
+        v = err / (2.0 * T)
+        near = jnp.sqrt(jnp.sum(err[:2] ** 2)) < 0.02
+        w_max = spec.action_high[3]
+        back = math.ceil(scene.pour_angle / (w_max * T)) + 2
+        pouring = near | (th > 0.2)
+        th_goal = jnp.where((state.t < spec.horizon - back) & pouring, scene.pour_angle, 0.0)
+        omega = (th_goal - th) / T
+        return jnp.concatenate([v, omega[None]])
+
+    def object_points(self, physics):
+        return physics.x
+
+    def end_effector(self, physics):
+        """The wrist (source bowl's rim centre) [m] (3,)."""
+        return wrist(self.spec.scene, physics.colliders)
+
+    def observe(self, physics):
+        """Every ``obs_stride``-th particle, the wrist [m] and the tilt [rad], flattened."""
+        pts = physics.x[:: self.spec.obs_stride]
+        return jnp.concatenate([pts.reshape(-1), self.end_effector(physics),
+                                tilt(physics.colliders)[None]])
 
 
 def _spec(name: str, scene: PourScene, substeps: int) -> TaskSpec:
     return TaskSpec(name=name, horizon=100, action_kind="velocity",
                     action_low=(-0.4, -0.4, -0.4, -3.0), action_high=(0.4, 0.4, 0.4, 3.0),
-                    substeps=substeps, distance="chamfer", lam=20.0, aux_reward=False,
-                    contact_adjustment=False, obs_stride=4, scene=scene)
+                    substeps=substeps, distance="chamfer", contact_adjustment=False,
+                    obs_stride=4, scene=scene)
 
 
-_DEFS = dict(init=init, apply_action=apply_action, goal=goal, object_points=object_points,
-             end_effector=end_effector, observe=observe, expert=expert, distance=distance)
-
-POUR_WATER = TaskDef(spec=_spec("pour_water", PourScene(), 30), **_DEFS)
-POUR_SOUP = TaskDef(spec=_spec("pour_soup", PourScene(
-    dt=0.025 / 36, fill_height=0.02, n_chunks=3), 36), **_DEFS)
+POUR_WATER = _spec("pour_water", PourScene(), 30)
+POUR_SOUP = _spec("pour_soup", PourScene(dt=0.025 / 36, fill_height=0.02, n_chunks=3), 36)

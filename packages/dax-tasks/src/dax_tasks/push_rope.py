@@ -1,8 +1,11 @@
 """Push-Rope: push an elastic rope lying on a table into a straight line.
 
-Scene (SI units, z up). An elastic MPM rope (fixed-corotated, ``PushRopeScene``) of
-length 0.24 m and radius 1 cm lies on a table (a ``plane`` collider at ``table_z`` with
-Coulomb friction). A vertical capsule pusher (radius 1.5 cm) is the end-effector. The MPM
+Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 5 kPa,
+nu = 0.3, rho = 1100 kg/m^3) of length 0.24 m and radius 1 cm lies on a table (a ``plane``
+collider at ``table_z``, Coulomb friction 0.5). A vertical capsule pusher (radius 1.5 cm,
+friction 0.3) is the end-effector. The material and the two friction coefficients are
+``params.physics`` (a :class:`dax_physics.MaterialParams`), so they can be changed,
+batched or differentiated without recompiling. The MPM
 grid has 1 cm cells; the allocated grid is a 36 x 36 x 10 cell window that follows the
 rope inside a 64 x 64 x 16 cell (0.64 x 0.64 x 0.16 m) domain.
 
@@ -31,7 +34,7 @@ Actions outside the bounds are clipped (x, y within 0.2 m of the table centre, t
 height 0 to 6 cm above the table).
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
-and the goal's; ``lam = 20 /m`` so ``r_gt = exp(-20 D)`` is about 0.37 at a mean error of
+and the goal's; λ = 20 /m so ``r_gt = exp(-20 D)`` is about 0.37 at a mean error of
 5 cm (over seeds 0-19: random actions 0.49, the scripted expert 0.88; doing nothing
 about 0.62 on seeds 0-3).
 """
@@ -50,17 +53,24 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
+    check_params,
+    checkpointed_scan,
     init_state,
     sampling,
     set_collider_velocity,
-    substep,
+    step,
 )
 
-from .template import TaskDef, TaskSpec, largest_divisor
+from .env import Env
+from .spec import TaskSpec
 
 TABLE, PUSHER = 0, 1
 #: Pushes shorter than this [m] in the table plane are not contact-adjusted.
 MIN_PUSH = 1e-3
+#: The rope's default material (``params.physics`` material 0).
+ROPE = Material("elastic", 1100.0, youngs_modulus=5.0e3, poisson_ratio=0.3)
+#: Default Coulomb coefficients of the table and the pusher (``params.physics.friction``).
+TABLE_FRICTION, PUSHER_FRICTION = 0.5, 0.3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,16 +82,11 @@ class PushRopeScene:
     domain: tuple = (64, 64, 16)      # cells
     window: tuple = (36, 36, 10)      # active-region cells
     table_z: float = 0.04             # table height [m]
-    table_friction: float = 0.5
     rope_length: float = 0.24         # [m]
     rope_radius: float = 0.01         # [m]
     ppc: int = 8                      # particles per cell
-    density: float = 1100.0           # [kg/m^3]
-    youngs_modulus: float = 5.0e3     # [Pa]
-    poisson_ratio: float = 0.3
     pusher_radius: float = 0.015      # [m]
     pusher_half_length: float = 0.03  # [m] (capsule segment half length)
-    pusher_friction: float = 0.3
     push_speed: float = 0.75          # largest pusher speed [m/s]
     lift_substeps: int = 40           # substeps of the lift at the end of each action
     lift_height: float = 0.05         # [m]
@@ -98,15 +103,13 @@ class PushRopeScene:
 
 
 def mpm_config(scene: PushRopeScene) -> MPMConfig:
-    """The MPM configuration of the scene (raises if ``dt`` is unstable)."""
-    mat = Material("elastic", scene.density, youngs_modulus=scene.youngs_modulus,
-                   poisson_ratio=scene.poisson_ratio)
+    """The MPM configuration of the scene (raises if ``dt`` is unstable for :data:`ROPE`)."""
     colliders = (
-        ColliderSpec("plane", (), mode="separate", friction=scene.table_friction),
+        ColliderSpec("plane", (), mode="separate", friction=TABLE_FRICTION),
         ColliderSpec("capsule", (scene.pusher_radius, scene.pusher_half_length),
-                     mode="separate", friction=scene.pusher_friction),
+                     mode="separate", friction=PUSHER_FRICTION),
     )
-    return MPMConfig(materials=(mat,), dx=scene.dx, dt=scene.dt, domain=scene.domain,
+    return MPMConfig(materials=(ROPE,), dx=scene.dx, dt=scene.dt, domain=scene.domain,
                      window=scene.window, walls="slip", colliders=colliders,
                      max_speed=scene.max_speed)
 
@@ -151,21 +154,15 @@ def straight(scene: PushRopeScene, rest) -> np.ndarray:
 
 #: Time [s] the straight rope settles under gravity to become the goal.
 GOAL_SETTLE_TIME = 0.25
-
-
-def goal(spec: TaskSpec):
-    """The goal: the reference rope straight along x, centred on the table, settled under
-    gravity for ``GOAL_SETTLE_TIME`` (the soft rope sags about 4 mm) (N, 3) [m]."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    rest, vol = rest_particles(scene)
-    colliders = ColliderState.create([[0.0, 0.0, scene.table_z], _park(scene)])
-    with jax.ensure_compile_time_eval():
-        state = init_state(cfg, straight(scene, rest), vol=vol, colliders=colliders)
-        n = round(GOAL_SETTLE_TIME / scene.dt)
-        state = jax.jit(lambda s: jax.lax.scan(
-            lambda c, _: (substep(cfg, cfg.params, c), None), s, None, length=n)[0])(state)
-        return np.asarray(state.x, np.float32)
+#: The expert pushes no closer than this to the rope's ends [m] (along the rope).
+END_MARGIN = 0.03
+#: The expert pushes this many times the pushed particle's distance to its goal line.
+#: Measured (seeds 0-2, first push): the particle moves only 15-55 % of the pusher's travel
+#: (the soft rope bends around the pusher and slides on the table), so pushing exactly
+#: to the line undershoots. Final r_gt over seeds 0-9 by gain: 1.0: 0.770, 1.3: 0.824,
+#: 1.6: 0.856, 1.8: 0.867, 2.0: 0.880, 2.2: 0.890, 2.5: 0.850 (some seeds overshoot),
+#: 3.0: 0.678; 2 sits inside the plateau.
+PUSH_GAIN = 2.0
 
 
 def _park(scene: PushRopeScene):
@@ -178,145 +175,145 @@ def _tip_to_centre(scene: PushRopeScene) -> float:
     return scene.pusher_radius + scene.pusher_half_length
 
 
-def init(key, spec: TaskSpec):
-    """A random rope shape (see the module docstring) at rest, pusher parked above."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    rest, vol = rest_particles(scene)
-    colliders = ColliderState.create([[0.0, 0.0, scene.table_z], _park(scene)])
-    template = init_state(cfg, straight(scene, rest), vol=vol, colliders=colliders)  # checked once
-
-    k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
-    modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
-    amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
-    amp = amp * scene.bend_amplitude / modes
-    phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
-    theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
-                                maxval=scene.heading_range)
-    offset = jax.random.uniform(k_off, (), minval=-scene.offset_range,
-                                maxval=scene.offset_range)
-    offset = jnp.stack([jnp.zeros_like(offset), offset])  # across the goal line only
-
-    def theta(s):
-        arg = modes[:, None] * math.pi * s[None, :] / scene.rope_length + phase[:, None]
-        return theta0 + jnp.sum(amp[:, None] * jnp.sin(arg), axis=0)
-
-    return template.replace(x=_place(scene, jnp.asarray(rest), theta, offset))
-
-
 def _safe_norm(v):
     return jnp.sqrt(jnp.sum(v * v) + 1e-12)
 
 
-def push_start(spec: TaskSpec, physics, action):
-    """The pusher tip's start point [m] (3,) after contact adjustment (if on)."""
-    start, end = action[:3], action[3:]
-    if not spec.contact_adjustment:
-        return start
-    scene = spec.scene
-    x = physics.x
-    i = jnp.argmin(jnp.sum((x[:, :2] - start[:2]) ** 2, axis=1))
-    p = x[i]
-    d = (end - start)[:2]
-    direction = d / _safe_norm(d)
-    xy = p[:2] - direction * (scene.pusher_radius + scene.rope_radius)
-    z = jnp.minimum(start[2], p[2])
-    adjusted = jnp.concatenate([xy, z[None]])
-    # A push shorter than MIN_PUSH has no direction to back off along: leave it as it is
-    # rather than dropping the pusher into the rope.
-    return jnp.where(jnp.sum(d * d) > MIN_PUSH ** 2, adjusted, start)
+class PushRope(Env):
+    """Push-Rope (see the module docstring). ``params.physics`` is the scene's
+    :class:`dax_physics.MaterialParams`: the rope's material and the friction of the table
+    and the pusher."""
 
+    LAM = 20.0
 
-def apply_action(spec: TaskSpec, physics, action):
-    """One push: place, push at constant velocity, lift (``spec.substeps`` substeps)."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    n_lift = scene.lift_substeps
-    n_push = spec.substeps - n_lift
-    if n_push <= 0:
-        raise ValueError(f"push_rope needs substeps > lift_substeps = {n_lift}, "
-                         f"got {spec.substeps}")
-    t_push, t_lift = n_push * scene.dt, max(n_lift, 1) * scene.dt
-    start = push_start(spec, physics, action)
-    disp = action[3:] - action[:3]
-    max_len = scene.push_speed * t_push
-    disp = disp * jnp.minimum(1.0, max_len / _safe_norm(disp))
-    centre = start + jnp.asarray([0.0, 0.0, _tip_to_centre(scene)], start.dtype)
-    cs = physics.colliders
-    physics = physics.replace(colliders=cs.replace(pos=cs.pos.at[PUSHER].set(centre)))
-    v_push = disp / t_push
-    v_lift = jnp.asarray([0.0, 0.0, scene.lift_height / t_lift], jnp.float32)
-    physics = _scheduled_rollout(cfg, physics, n_push, v_push, v_lift, spec.substeps,
-                                 largest_divisor(spec.substeps, scene.segment))
-    return set_collider_velocity(physics, PUSHER, jnp.zeros(3))
+    def __init__(self, spec: TaskSpec):
+        super().__init__(spec)
+        scene = spec.scene
+        if spec.substeps <= scene.lift_substeps:
+            raise ValueError(f"push_rope needs substeps > lift_substeps = "
+                             f"{scene.lift_substeps}, got {spec.substeps}")
+        self.cfg = mpm_config(scene)
+        self._physics_params = self.cfg.params
+        self._rest, vol = rest_particles(scene)
+        colliders = ColliderState.create([[0.0, 0.0, scene.table_z], _park(scene)])
+        # the canonical straight rope: validated once, fixes dtypes and shapes
+        self._template = init_state(self.cfg, straight(scene, self._rest), vol=vol,
+                                    colliders=colliders)
 
+    @property
+    def substep_dt(self) -> float:
+        return self.cfg.dt
 
-def _scheduled_rollout(cfg, physics, n_push, v_push, v_lift, n, segment):
-    """``n`` substeps in one checkpointed scan; the pusher moves at ``v_push`` for the first
-    ``n_push`` substeps and at ``v_lift`` after (one scan, so the substep body is compiled
-    once for the forward pass and once for the backward pass)."""
-    params = cfg.params
+    def default_physics_params(self):
+        return self._physics_params
 
-    def body(s, i):
-        vel = jnp.where(i < n_push, v_push, v_lift)
-        s = set_collider_velocity(s, PUSHER, vel, jnp.zeros(3))
-        return substep(cfg, params, s), None
+    def check_physics_params(self, physics) -> None:
+        check_params(self.cfg, physics)
 
-    @jax.checkpoint
-    def seg(s, idx):
-        return jax.lax.scan(body, s, idx)[0]
+    def init(self, key, params):
+        """A random rope shape (see the module docstring) at rest, pusher parked above."""
+        scene = self.spec.scene
+        k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
+        modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
+        amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
+        amp = amp * scene.bend_amplitude / modes
+        phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
+        theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
+                                    maxval=scene.heading_range)
+        offset = jax.random.uniform(k_off, (), minval=-scene.offset_range,
+                                    maxval=scene.offset_range)
+        offset = jnp.stack([jnp.zeros_like(offset), offset])  # across the goal line only
 
-    idx = jnp.arange(n, dtype=jnp.int32).reshape(n // segment, segment)
-    return jax.lax.scan(lambda s, i: (seg(s, i), None), physics, idx)[0]
+        def theta(s):
+            arg = modes[:, None] * math.pi * s[None, :] / scene.rope_length + phase[:, None]
+            return theta0 + jnp.sum(amp[:, None] * jnp.sin(arg), axis=0)
 
+        return self._template.replace(x=_place(scene, jnp.asarray(self._rest), theta, offset))
 
-#: The expert pushes no closer than this to the rope's ends [m] (along the rope).
-END_MARGIN = 0.03
-#: The expert pushes this many times the pushed particle's distance to its goal line.
-#: Measured (seeds 0-2, first push): the particle moves only 15-55 % of the pusher's travel
-#: (the soft rope bends around the pusher and slides on the table), so pushing exactly
-#: to the line undershoots. Final r_gt over seeds 0-9 by gain: 1.0: 0.770, 1.3: 0.824,
-#: 1.6: 0.856, 1.8: 0.867, 2.0: 0.880, 2.2: 0.890, 2.5: 0.850 (some seeds overshoot),
-#: 3.0: 0.678; 2 sits inside the plateau.
-PUSH_GAIN = 2.0
+    def push_start(self, physics, action):
+        """The pusher tip's start point [m] (3,) after contact adjustment (if on)."""
+        start, end = action[:3], action[3:]
+        if not self.spec.contact_adjustment:
+            return start
+        scene = self.spec.scene
+        x = physics.x
+        i = jnp.argmin(jnp.sum((x[:, :2] - start[:2]) ** 2, axis=1))
+        p = x[i]
+        d = (end - start)[:2]
+        direction = d / _safe_norm(d)
+        xy = p[:2] - direction * (scene.pusher_radius + scene.rope_radius)
+        z = jnp.minimum(start[2], p[2])
+        adjusted = jnp.concatenate([xy, z[None]])
+        # A push shorter than MIN_PUSH has no direction to back off along: leave it as it
+        # is rather than dropping the pusher into the rope.
+        return jnp.where(jnp.sum(d * d) > MIN_PUSH ** 2, adjusted, start)
 
+    def apply_action(self, physics, action, params):
+        """One push: place, push at constant velocity, lift (``spec.substeps`` substeps in
+        one checkpointed scan; the pusher moves at the push velocity for the first
+        ``substeps - lift_substeps`` substeps and at the lift velocity after)."""
+        scene, cfg = self.spec.scene, self.cfg
+        n = self.spec.substeps
+        n_push = n - scene.lift_substeps
+        t_push, t_lift = n_push * cfg.dt, max(scene.lift_substeps, 1) * cfg.dt
+        start = self.push_start(physics, action)
+        disp = action[3:] - action[:3]
+        max_len = scene.push_speed * t_push
+        disp = disp * jnp.minimum(1.0, max_len / _safe_norm(disp))
+        centre = start + jnp.asarray([0.0, 0.0, _tip_to_centre(scene)], start.dtype)
+        cs = physics.colliders
+        physics = physics.replace(colliders=cs.replace(pos=cs.pos.at[PUSHER].set(centre)))
+        v_push = disp / t_push
+        v_lift = jnp.asarray([0.0, 0.0, scene.lift_height / t_lift], jnp.float32)
+        material = params.physics
 
-def expert_action(spec: TaskSpec, physics, goal_points):
-    """Scripted expert (privileged state): push the particle farthest from the goal line
-    (in y), at least ``END_MARGIN`` from either end, straight across towards it, tip 2 mm
-    above the table, the pusher's front travelling ``PUSH_GAIN`` times the particle's
-    distance to the line (the rope lags the pusher).
-    Pushing along the rope (to fix an offset in x) does not work on this soft rope: it
-    compresses instead of sliding. Pure and jittable; dax-data's demonstrations call this
-    rather than re-implement it."""
-    scene = spec.scene
-    x = physics.x
-    err_y = goal_points[:, 1] - x[:, 1]
-    # not the last END_MARGIN of either end: a push there slides off the rope's tip
-    gx = goal_points[:, 0]
-    inner = (gx > jnp.min(gx) + END_MARGIN) & (gx < jnp.max(gx) - END_MARGIN)
-    i = jnp.argmax(jnp.where(inner, jnp.abs(err_y), -1.0))
-    p = x[i, :2]
-    move = jnp.stack([0.0, PUSH_GAIN * err_y[i]])
-    back = move / _safe_norm(move) * (scene.pusher_radius + scene.rope_radius)
-    z = jnp.full((1,), scene.table_z + 0.002, jnp.float32)
-    action = jnp.concatenate([p - back, z, p + move - back, z])
-    return jnp.clip(action, jnp.asarray(spec.action_low), jnp.asarray(spec.action_high))
+        def body(s, i):
+            vel = jnp.where(i < n_push, v_push, v_lift)
+            s = set_collider_velocity(s, PUSHER, vel, jnp.zeros(3))
+            return step(cfg, material, s), None
 
+        physics = checkpointed_scan(body, physics, jnp.arange(n, dtype=jnp.int32),
+                                    segment=scene.segment)[0]
+        return set_collider_velocity(physics, PUSHER, jnp.zeros(3))
 
-def expert(spec: TaskSpec, state):
-    """The template's expert hook: :func:`expert_action` on the episode state."""
-    return expert_action(spec, state.physics, state.goal)
+    def canonical_goal(self) -> np.ndarray:
+        """The goal: the reference rope straight along x, centred on the table, settled
+        under gravity for ``GOAL_SETTLE_TIME`` (the soft rope sags about 4 mm) (N, 3) [m]."""
+        cfg, material = self.cfg, self._physics_params
+        n = round(GOAL_SETTLE_TIME / cfg.dt)
+        with jax.ensure_compile_time_eval():
+            state = jax.jit(lambda s: jax.lax.scan(
+                lambda c, _: (step(cfg, material, c), None), s, None, length=n)[0])(
+                    self._template)
+            return np.asarray(state.x, np.float32)
 
+    def expert(self, state, params):
+        """Scripted expert (privileged state): push the particle farthest from the goal
+        line (in y), at least ``END_MARGIN`` from either end, straight across towards it,
+        tip 2 mm above the table, the pusher's front travelling ``PUSH_GAIN`` times the
+        particle's distance to the line (the rope lags the pusher). Pushing along the rope
+        (to fix an offset in x) does not work on this soft rope: it compresses instead of
+        sliding. dax-data's demonstrations call this rather than re-implement it."""
+        scene = self.spec.scene
+        x, goal_points = state.physics.x, params.goal
+        err_y = goal_points[:, 1] - x[:, 1]
+        # not the last END_MARGIN of either end: a push there slides off the rope's tip
+        gx = goal_points[:, 0]
+        inner = (gx > jnp.min(gx) + END_MARGIN) & (gx < jnp.max(gx) - END_MARGIN)
+        i = jnp.argmax(jnp.where(inner, jnp.abs(err_y), -1.0))
+        p = x[i, :2]
+        move = jnp.stack([0.0, PUSH_GAIN * err_y[i]])
+        back = move / _safe_norm(move) * (scene.pusher_radius + scene.rope_radius)
+        z = jnp.full((1,), scene.table_z + 0.002, jnp.float32)
+        return jnp.concatenate([p - back, z, p + move - back, z])
 
-def object_points(spec: TaskSpec, physics):
-    return physics.x
+    def object_points(self, physics):
+        return physics.x
 
-
-def end_effector(spec: TaskSpec, physics):
-    """The pusher tip [m] (3,)."""
-    centre = physics.colliders.pos[PUSHER]
-    return centre - jnp.asarray([0.0, 0.0, _tip_to_centre(spec.scene)], centre.dtype)
+    def end_effector(self, physics):
+        """The pusher tip [m] (3,)."""
+        centre = physics.colliders.pos[PUSHER]
+        return centre - jnp.asarray([0.0, 0.0, _tip_to_centre(self.spec.scene)], centre.dtype)
 
 
 def _spec() -> TaskSpec:
@@ -327,9 +324,8 @@ def _spec() -> TaskSpec:
     high = (cx + reach, cy + reach, scene.table_z + 0.06)
     return TaskSpec(
         name="push_rope", horizon=6, action_kind="push", action_low=low + low,
-        action_high=high + high, substeps=200, distance="l2", lam=20.0, aux_reward=False,
-        contact_adjustment=True, obs_stride=4, scene=scene)
+        action_high=high + high, substeps=200, distance="l2", contact_adjustment=True,
+        obs_stride=4, scene=scene)
 
 
-PUSH_ROPE = TaskDef(spec=_spec(), init=init, apply_action=apply_action, goal=goal,
-                    object_points=object_points, end_effector=end_effector, expert=expert)
+PUSH_ROPE = _spec()

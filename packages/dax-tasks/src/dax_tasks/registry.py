@@ -1,4 +1,4 @@
-"""The task registry: ``TASKS`` and ``make(name, batch_size=None, seed=0, **overrides)``."""
+"""The task registry: ``TASKS``, ``get_spec(name)`` and the entry point ``make(name, ...)``."""
 
 from __future__ import annotations
 
@@ -6,36 +6,43 @@ import dataclasses
 import importlib
 from types import MappingProxyType
 
-from .template import Task, TaskDef, TaskSpec
+from . import goals
+from .env import Env, EnvParams
+from .spec import TaskSpec
 
-#: The nine benchmark tasks (issue 4), in the literature's order.
+#: The nine benchmark tasks, in the literature's order.
 TASKS = (
     "pour_water", "pour_soup", "push_rope", "whip_rope", "fold_cloth1", "fold_cloth3",
     "fold_tshirt", "unfold_cloth1", "unfold_cloth3",
 )
 
-# Where each task lives: name -> (module, TaskDef attribute). Imported on first use.
+# Where each task lives: name -> (module, Env subclass, default TaskSpec attribute).
+# Imported on first use.
 _MODULES = MappingProxyType({
-    "pour_water": ("dax_tasks.pour", "POUR_WATER"),
-    "pour_soup": ("dax_tasks.pour", "POUR_SOUP"),
-    "push_rope": ("dax_tasks.push_rope", "PUSH_ROPE"),
-    "whip_rope": ("dax_tasks.whip_rope", "WHIP_ROPE"),
-    "fold_cloth1": ("dax_tasks.cloth_tasks", "FOLD_CLOTH1"),
-    "fold_cloth3": ("dax_tasks.cloth_tasks", "FOLD_CLOTH3"),
-    "fold_tshirt": ("dax_tasks.cloth_tasks", "FOLD_TSHIRT"),
-    "unfold_cloth1": ("dax_tasks.cloth_tasks", "UNFOLD_CLOTH1"),
-    "unfold_cloth3": ("dax_tasks.cloth_tasks", "UNFOLD_CLOTH3"),
+    "pour_water": ("dax_tasks.pour", "Pour", "POUR_WATER"),
+    "pour_soup": ("dax_tasks.pour", "Pour", "POUR_SOUP"),
+    "push_rope": ("dax_tasks.push_rope", "PushRope", "PUSH_ROPE"),
+    "whip_rope": ("dax_tasks.whip_rope", "WhipRope", "WHIP_ROPE"),
+    "fold_cloth1": ("dax_tasks.cloth_tasks", "ClothTask", "FOLD_CLOTH1"),
+    "fold_cloth3": ("dax_tasks.cloth_tasks", "ClothTask", "FOLD_CLOTH3"),
+    "fold_tshirt": ("dax_tasks.cloth_tasks", "ClothTask", "FOLD_TSHIRT"),
+    "unfold_cloth1": ("dax_tasks.cloth_tasks", "ClothTask", "UNFOLD_CLOTH1"),
+    "unfold_cloth3": ("dax_tasks.cloth_tasks", "ClothTask", "UNFOLD_CLOTH3"),
 })
+
+#: The :class:`EnvParams` fields ``make`` accepts as overrides of the default params.
+PARAM_OVERRIDES = ("lam", "aux_weight")
 
 
 def _implemented(name: str) -> bool:
-    module, attr = _MODULES[name]
+    module, cls, attr = _MODULES[name]
     try:
-        return hasattr(importlib.import_module(module), attr)
+        mod = importlib.import_module(module)
     except ModuleNotFoundError as err:
         if err.name != module:  # the task module exists but one of its imports does not
             raise
         return False
+    return hasattr(mod, cls) and hasattr(mod, attr)
 
 
 def available() -> tuple:
@@ -43,33 +50,67 @@ def available() -> tuple:
     return tuple(n for n in TASKS if _implemented(n))
 
 
-def get_definition(name: str) -> TaskDef:
-    """The :class:`TaskDef` (default spec and functions) of task ``name``."""
+def _entry(name: str):
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
     if not _implemented(name):
         raise NotImplementedError(
             f"task {name!r} is declared but not implemented yet in dax-tasks; "
             f"available now: {', '.join(available())}")
-    module, attr = _MODULES[name]
-    return getattr(importlib.import_module(module), attr)
+    module, cls, attr = _MODULES[name]
+    mod = importlib.import_module(module)
+    return getattr(mod, cls), getattr(mod, attr)
 
 
 def get_spec(name: str) -> TaskSpec:
     """The default :class:`TaskSpec` of task ``name``."""
-    return get_definition(name).spec
+    return _entry(name)[1]
 
 
-def make(name: str, batch_size: int | None = None, seed: int = 0, goal_path=None,
-         cache_goal: bool = True, **overrides) -> Task:
-    """Build task ``name``. ``overrides`` replace :class:`TaskSpec` fields, e.g.
-    ``aux_reward=True``, ``contact_adjustment=False``, ``horizon=3`` or a new ``scene``.
-    ``goal_path`` / ``cache_goal``: where the goal comes from (:mod:`dax_tasks.goals`)."""
-    defn = get_definition(name)
-    fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
-    unknown = sorted(set(overrides) - fields)
+def env_class(name: str) -> type[Env]:
+    """The :class:`Env` subclass that implements task ``name``."""
+    return _entry(name)[0]
+
+
+def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=None,
+         cache_goal: bool = True, **overrides) -> Env:
+    """Build task ``name`` as a pure environment (:class:`dax_tasks.Env`).
+
+    overrides: :class:`TaskSpec` fields (``horizon=3``, ``substeps=50``, a new ``scene``,
+        ``contact_adjustment=False``: a new program) and the default-params fields ``lam``
+        and ``aux_weight`` (numbers: no new program; the same as
+        ``env.default_params.replace(...)``).
+    obs_mode: ``"state"`` (the task's own observation, default), ``"particles"``,
+        ``"height"``, ``"rgb"`` or ``"rgbd"``: any other mode wraps the env in
+        :class:`dax_tasks.wrappers.ObservationMode` with images of ``image_size`` pixels.
+    goal_path / cache_goal: where the goal comes from (:mod:`dax_tasks.goals`).
+
+    Batching, auto-reset and episode statistics are wrappers the caller chooses
+    (:mod:`dax_tasks.wrappers`); the Gymnasium ids are in :mod:`dax_tasks.gym`.
+    """
+    cls, default = _entry(name)
+    spec_fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
+    unknown = sorted(set(overrides) - spec_fields - set(PARAM_OVERRIDES))
     if unknown:
-        raise ValueError(f"unknown TaskSpec override(s) {unknown}; valid: {sorted(fields)}")
-    spec = dataclasses.replace(defn.spec, **overrides)
-    return Task(defn, spec, batch_size=batch_size, seed=seed, goal_path=goal_path,
-                cache_goal=cache_goal)
+        raise ValueError(f"unknown override(s) {unknown}; valid: TaskSpec fields "
+                         f"{sorted(spec_fields)} and params {list(PARAM_OVERRIDES)}")
+    param_changes = {k: overrides.pop(k) for k in PARAM_OVERRIDES if k in overrides}
+    spec = dataclasses.replace(default, **overrides)
+    env = cls(spec)
+    points, provenance = goals.resolve_goal(env, goal_path, use_cache=cache_goal)
+    env = env.with_goal(points, provenance)
+    if param_changes:
+        env = env.with_default_params(_checked_params(env, param_changes))
+    if obs_mode != "state":
+        from .wrappers import ObservationMode
+
+        return ObservationMode(env, obs_mode, image_size)
+    return env
+
+
+def _checked_params(env: Env, changes: dict) -> EnvParams:
+    from .checks import check_params
+
+    params = env.default_params.replace(**changes)
+    check_params(env, params)
+    return params

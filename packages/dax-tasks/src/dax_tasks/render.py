@@ -14,17 +14,22 @@ the right and y up.
   (low) to light blue (``shade_height`` above ``z0`` or more) and the end effector as a red
   square.
 
-``Task.image_obs(state)``, ``Task.render(state)`` and ``dax_tasks.gym_envs`` use these.
+A :class:`Camera` fixes the view window and the points' splat radius of one env (host
+side, once); its ``height`` and ``rgb`` are pure and are what the ``height``, ``rgb`` and
+``rgbd`` observation modes (:class:`dax_tasks.wrappers.ObservationMode`),
+:func:`render` and the Gymnasium adapter show.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .goals import atomic_write
+from .io import atomic_write
 
 #: Smallest height [m] an occupied pixel of the height map gets.
 MIN_HEIGHT = 1e-4
@@ -106,6 +111,45 @@ def rgb_image(points, end_effector, window, res: int = 64, radius: float = 0.0,
     return jnp.round(img).astype(jnp.uint8)
 
 
+@dataclasses.dataclass(frozen=True)
+class Camera:
+    """A top-down view of one env: ``window`` ``(x0, x1, y0, y1, z0)`` [m] (see
+    :func:`view_window`) and ``radius`` [m], the disc each object point covers."""
+
+    window: tuple
+    radius: float
+
+    @staticmethod
+    def for_env(env, key=None, params=None) -> Camera:
+        """The view around the goal, the start of the episode drawn from ``key`` (default
+        ``PRNGKey(0)``) and its end effector; points cover 0.75 x their median spacing."""
+        key = jax.random.PRNGKey(0) if key is None else key
+        params = env.default_params if params is None else params
+        with jax.ensure_compile_time_eval():
+            _, state = jax.jit(env.reset)(key, params)
+            pts = np.asarray(env.object_points(state.physics))
+            ee = np.asarray(env.end_effector(state.physics))
+        return Camera(view_window(pts, extra=(np.asarray(params.goal), ee)),
+                      0.75 * point_spacing(pts))
+
+    def height(self, points, res: int = 64):
+        """``(res, res)`` float32 height map [m] (:func:`height_map`)."""
+        return height_map(points, self.window, res, self.radius)
+
+    def rgb(self, points, end_effector, res: int = 64):
+        """``(res, res, 3)`` uint8 picture (:func:`rgb_image`)."""
+        return rgb_image(points, end_effector, self.window, res, self.radius)
+
+
+def render(env, state, res: int = 256, camera: Camera | None = None) -> np.ndarray:
+    """An RGB frame ``(res, res, 3)`` uint8 (NumPy) of ``state`` seen from above; a batch of
+    states (leading axis) gives one frame per state."""
+    camera = Camera.for_env(env) if camera is None else camera
+    frame = jax.jit(lambda p: camera.rgb(env.object_points(p), env.end_effector(p), res))
+    batched = np.ndim(state.t) == 1  # the step counter is a scalar per env
+    return np.asarray(jax.vmap(frame)(state.physics) if batched else frame(state.physics))
+
+
 def save_video(frames, path, fps: float = 10.0) -> Path:
     """Write ``frames`` (a sequence of (H, W, 3) uint8 images) to ``path`` as an animated
     GIF, atomically (a temporary file in the same directory, then renamed)."""
@@ -128,24 +172,24 @@ def save_video(frames, path, fps: float = 10.0) -> Path:
         duration=int(round(1000 / fps)), loop=0))
 
 
-def record_episode(task, policy=None, key=None, res: int = 128):
-    """Frames (a list of (res, res, 3) uint8) of one episode of an unbatched ``task``: the
+def record_episode(env, policy=None, key=None, res: int = 128, params=None):
+    """Frames (a list of (res, res, 3) uint8) of one episode of ``env`` (unbatched): the
     start and every step. ``policy(state) -> action``; default the task's scripted expert,
     or zero actions clipped into the bounds when it has none."""
-    if task.batch_size is not None:
-        raise ValueError("record_episode renders one environment; make the task with "
-                         "batch_size=None")
+    params = env.default_params if params is None else params
     if policy is None:
-        if task.has_expert:
-            policy = task.expert_action
+        if env.has_expert:
+            policy = jax.jit(lambda s: env.expert_action(s, params))
         else:
-            zero = np.clip(np.zeros(task.spec.action_dim, np.float32),
-                           task.spec.action_low, task.spec.action_high)
+            zero = np.clip(np.zeros(env.spec.action_dim, np.float32),
+                           env.spec.action_low, env.spec.action_high)
             policy = lambda state: zero  # noqa: E731
-    _, state = task.reset(key)
-    frames = [task.render(state, res=res)]
-    for _ in range(task.horizon):
-        _, state, _, _, _ = task.step(state, policy(state))
-        frames.append(task.render(state, res=res))
+    camera = Camera.for_env(env)
+    key = jax.random.PRNGKey(0) if key is None else key
+    step = jax.jit(env.step)
+    _, state = jax.jit(env.reset)(key, params)
+    frames = [render(env, state, res, camera)]
+    for _ in range(env.horizon):
+        _, state, _, _, _ = step(state, policy(state), params)
+        frames.append(render(env, state, res, camera))
     return frames
-

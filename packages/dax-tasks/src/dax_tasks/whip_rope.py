@@ -1,8 +1,9 @@
 """Whip-Rope: move the held end of a rope so that it lands in a target configuration.
 
-Scene (SI units, z up). An elastic MPM rope (fixed-corotated, E = 4e4 Pa, nu = 0.3,
-rho = 1100 kg/m^3) of length 0.25 m and radius 1 cm lies on a table (a ``plane``
-collider at ``table_z`` = 4.5 cm, Coulomb friction 0.4). The gripper holds the first
+Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 4e4 Pa,
+nu = 0.3, rho = 1100 kg/m^3) of length 0.25 m and radius 1 cm lies on a table (a
+``plane`` collider at ``table_z`` = 4.5 cm, Coulomb friction 0.4). The material and the
+friction are ``params.physics`` (a :class:`dax_physics.MaterialParams`). The gripper holds the first
 ``grip_length`` = 3 cm of the rope (31 of the 288 particles, the same indices for every
 seed): after every substep those particles are set rigidly on the gripper's path, with
 its velocity and a zero APIC matrix (the grasp of :func:`dax_physics.grasp`, imposed in
@@ -45,7 +46,7 @@ lay the end down (2, -2, -2) cm over steps 52-61; then the rope settles. Peak sp
 0.69 m/s.
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
-and the goal's; ``lam = 7 /m``: ``r_gt = exp(-7 D)`` is 0.85 at D = 2.3 cm and 0.5 at
+and the goal's; λ = 7 /m: ``r_gt = exp(-7 D)`` is 0.85 at D = 2.3 cm and 0.5 at
 D = 10 cm. Seeds 0-3: the scripted expert ends at r_gt 0.85-0.93 (D 1-2.4 cm), doing
 nothing at 0.56-0.64 (D 6.4-8.4 cm).
 
@@ -69,12 +70,20 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
+    check_params,
+    checkpointed_scan,
     init_state,
     sampling,
-    substep,
+    step,
 )
 
-from .template import TaskDef, TaskSpec, checkpointed_substeps
+from .env import Env
+from .spec import TaskSpec
+
+#: The rope's default material (``params.physics`` material 0).
+ROPE = Material("elastic", 1100.0, youngs_modulus=4.0e4, poisson_ratio=0.3)
+#: Default Coulomb coefficient of the table (``params.physics.friction[0]``).
+TABLE_FRICTION = 0.4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,13 +95,9 @@ class WhipRopeScene:
     domain: tuple = (80, 80, 24)      # cells (1.0 x 1.0 x 0.3 m)
     window: tuple = (30, 30, 12)      # active-region cells
     table_z: float = 0.045            # table height [m]
-    table_friction: float = 0.4
     rope_length: float = 0.25         # [m]
     rope_radius: float = 0.01         # [m]
     ppc: int = 8                      # particles per cell
-    density: float = 1100.0           # [kg/m^3]
-    youngs_modulus: float = 4.0e4     # [Pa]
-    poisson_ratio: float = 0.3
     grip_length: float = 0.03         # held length of rope at the s = 0 end [m]
     max_speed: float = 2.5            # largest expected particle speed [m/s] (CFL guard)
     grip_speed: float = 0.75          # largest gripper speed (norm) [m/s]
@@ -117,13 +122,12 @@ class WhipRopeScene:
 
 
 def mpm_config(scene: WhipRopeScene) -> MPMConfig:
-    """The MPM configuration of the scene (raises if ``dt`` is unstable). The only collider
-    is the table: the gripper is kinematic and imposed on the held particles (see
-    :func:`apply_action`), so it costs no signed-distance evaluation on the grid."""
-    mat = Material("elastic", scene.density, youngs_modulus=scene.youngs_modulus,
-                   poisson_ratio=scene.poisson_ratio)
-    colliders = (ColliderSpec("plane", (), mode="separate", friction=scene.table_friction),)
-    return MPMConfig(materials=(mat,), dx=scene.dx, dt=scene.dt, domain=scene.domain,
+    """The MPM configuration of the scene (raises if ``dt`` is unstable for :data:`ROPE`).
+    The only collider is the table: the gripper is kinematic and imposed on the held
+    particles (see :meth:`WhipRope.apply_action`), so it costs no signed-distance
+    evaluation on the grid."""
+    colliders = (ColliderSpec("plane", (), mode="separate", friction=TABLE_FRICTION),)
+    return MPMConfig(materials=(ROPE,), dx=scene.dx, dt=scene.dt, domain=scene.domain,
                      window=scene.window, walls="slip", colliders=colliders,
                      max_speed=scene.max_speed)
 
@@ -176,47 +180,18 @@ def straight(scene: WhipRopeScene, rest) -> np.ndarray:
     return np.stack([rest[:, 0] + x0, rest[:, 1] + y0, z], axis=1).astype(np.float32)
 
 
-def _template(scene: WhipRopeScene, rest, vol):
-    """The canonical initial state (validated by ``init_state``): fixes dtypes and shapes."""
-    colliders = ColliderState.create([[0.0, 0.0, scene.table_z]])
-    return init_state(mpm_config(scene), straight(scene, rest), vol=vol, colliders=colliders)
-
-
-def canonical_state(scene: WhipRopeScene):
-    """The canonical initial state: the rope straight along +x, centred on the table."""
+def _template(scene: WhipRopeScene, cfg: MPMConfig):
+    """The canonical initial state (validated by ``init_state``): the rope straight along
+    +x, centred on the table; fixes dtypes and shapes."""
     rest, vol = rest_particles(scene)
-    return _template(scene, rest, vol)
+    colliders = ColliderState.create([[0.0, 0.0, scene.table_z]])
+    return init_state(cfg, straight(scene, rest), vol=vol, colliders=colliders)
 
 
 def canonical_start(scene: WhipRopeScene) -> np.ndarray:
     """The gripper position (centroid of the held particles) of the canonical state."""
     rest, _ = rest_particles(scene)
     return straight(scene, rest)[held_mask(scene)].mean(0).astype(np.float32)
-
-
-def init(key, spec: TaskSpec):
-    """A random rope shape on the table (see the module docstring), at rest, its first
-    ``grip_length`` held by the gripper."""
-    scene = spec.scene
-    rest, vol = rest_particles(scene)
-    template = _template(scene, rest, vol)  # checked once, at trace time
-    k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
-    modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
-    amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
-    amp = amp * scene.bend_amplitude / modes
-    phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
-    theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
-                                maxval=scene.heading_range)
-    offset = jax.random.uniform(k_off, (2,), minval=-scene.offset_range,
-                                maxval=scene.offset_range)
-
-    def theta(s):
-        arg = modes[:, None] * math.pi * s[None, :] / scene.rope_length + phase[:, None]
-        bend = jnp.sin(arg) - jnp.sin(phase[:, None])  # zero at the held end
-        return theta0 + jnp.sum(amp[:, None] * bend, axis=0)
-
-    start = jnp.asarray(_rope_start(scene)) + offset
-    return template.replace(x=_place(scene, jnp.asarray(rest), theta, start))
 
 
 def workspace(scene: WhipRopeScene):
@@ -228,117 +203,143 @@ def workspace(scene: WhipRopeScene):
     return lo, np.asarray(scene.grip_high, np.float32)
 
 
-def _step_time(spec: TaskSpec) -> float:
-    return spec.substeps * spec.scene.dt
-
-
-def gripper(spec: TaskSpec, physics):
-    """The gripper position [m] (3,): the centroid of the held particles."""
-    mask = jnp.asarray(held_mask(spec.scene), physics.x.dtype)
-    return jnp.sum(physics.x * mask[:, None], axis=0) / jnp.sum(mask)
-
-
-def apply_action(spec: TaskSpec, physics, action):
-    """One env step: the gripper moves at the commanded velocity ``action`` (3,) [m/s] for
-    ``spec.substeps`` substeps; the held particles translate rigidly with it (after every
-    substep their positions are set on the gripper's path, their velocity to the gripper's
-    and their APIC matrix to zero). The speed is capped at ``grip_speed`` (norm) and the
-    gripper's end point clipped to :func:`workspace` (the velocity is scaled down
-    accordingly; a clipped component has zero gradient)."""
-    scene = spec.scene
-    cfg = mpm_config(scene)
-    if action.shape != (3,):
-        raise ValueError(f"whip_rope expects a velocity action (vx, vy, vz), got shape "
-                         f"{action.shape}")
-    T = _step_time(spec)
-    held = jnp.asarray(held_mask(scene))
-    p = gripper(spec, physics)
-    speed = jnp.sqrt(jnp.sum(action * action) + 1e-12)
-    action = action * jnp.minimum(1.0, scene.grip_speed / speed)
-    lo, hi = workspace(scene)
-    target = jnp.clip(p + action * T, jnp.asarray(lo), jnp.asarray(hi))
-    vel = (target - p) / T
-    x0 = physics.x
-    params = cfg.params
-    h3 = held[:, None]
-
-    def body(s, i):
-        s = substep(cfg, params, s)
-        moved = x0 + vel * ((i + 1).astype(x0.dtype) * scene.dt)
-        return s.replace(x=jnp.where(h3, moved, s.x),
-                         v=jnp.where(h3, jnp.broadcast_to(vel, s.v.shape), s.v),
-                         C=jnp.where(held[:, None, None], 0.0, s.C))
-
-    return checkpointed_substeps(body, physics, spec.substeps, scene.segment)
-
-
-def throw_velocities(spec: TaskSpec) -> np.ndarray:
-    """The canonical throw's gripper velocity per env step (horizon, 3) [m/s]: each phase
-    of ``scene.throw`` is a raised-cosine bump whose per-step averages move the gripper by
-    exactly the phase's displacement."""
-    T = _step_time(spec)
-    v = np.zeros((spec.horizon, 3), np.float64)
-    for start, steps, *disp in spec.scene.throw:
-        edges = np.linspace(0.0, 1.0, steps + 1)
-        cum = edges - np.sin(2 * np.pi * edges) / (2 * np.pi)  # integral of 1 - cos(2 pi u)
-        frac = np.diff(cum)
-        for k in range(steps):
-            if 0 <= start + k < spec.horizon:
-                v[start + k] += frac[k] * np.asarray(disp) / T
-    return v.astype(np.float32)
-
-
-def canonical_path(spec: TaskSpec) -> np.ndarray:
-    """The canonical gripper position at the start of each env step (horizon + 1, 3)."""
-    v = throw_velocities(spec)
-    p0 = canonical_start(spec.scene).astype(np.float64)
-    return (p0 + np.concatenate([np.zeros((1, 3)), np.cumsum(v * _step_time(spec), 0)])
-            ).astype(np.float32)
-
-
-def goal(spec: TaskSpec):
-    """The goal (N, 3) [m]: the rope after the canonical throw (``throw_velocities`` for
-    ``spec.horizon`` steps) from the canonical initial state."""
-    scene = spec.scene
-    vel = throw_velocities(spec)
-    with jax.ensure_compile_time_eval():
-        state = canonical_state(scene)
-
-        def run(s):
-            return jax.lax.scan(lambda c, a: (apply_action(spec, c, a), None), s,
-                                jnp.asarray(vel))[0]
-
-        state = jax.jit(run)(state)
-        return np.asarray(state.x, np.float32)
-
-
 #: Feedback gain of the expert's tracking of the canonical gripper path (per env step).
 TRACK_GAIN = 0.5
 
 
-def expert_action(spec: TaskSpec, physics, t):
-    """Track the canonical throw: its velocity at step ``t`` plus ``TRACK_GAIN`` of the
-    gripper's position error to the canonical path per step."""
-    vel = jnp.asarray(throw_velocities(spec))
-    path = jnp.asarray(canonical_path(spec))
-    t = jnp.clip(t, 0, spec.horizon - 1)
-    err = path[t] - gripper(spec, physics)
-    a = vel[t] + TRACK_GAIN * err / _step_time(spec)
-    return jnp.clip(a, jnp.asarray(spec.action_low), jnp.asarray(spec.action_high))
+class WhipRope(Env):
+    """Whip-Rope (see the module docstring). ``params.physics`` is the scene's
+    :class:`dax_physics.MaterialParams`: the rope's material and the table's friction."""
 
+    LAM = 7.0
 
-def expert(spec: TaskSpec, state):
-    """The template's expert hook: :func:`expert_action` on the episode state."""
-    return expert_action(spec, state.physics, state.t)
+    def __init__(self, spec: TaskSpec):
+        super().__init__(spec)
+        scene = spec.scene
+        self.cfg = mpm_config(scene)
+        self._physics_params = self.cfg.params
+        self._rest, _ = rest_particles(scene)
+        self._held = held_mask(scene)
+        self._template = _template(scene, self.cfg)  # checked once
 
+    @property
+    def substep_dt(self) -> float:
+        return self.cfg.dt
 
-def object_points(spec: TaskSpec, physics):
-    return physics.x
+    def default_physics_params(self):
+        return self._physics_params
 
+    def check_physics_params(self, physics) -> None:
+        check_params(self.cfg, physics)
 
-def end_effector(spec: TaskSpec, physics):
-    """The gripper position [m] (3,) (centroid of the held particles)."""
-    return gripper(spec, physics)
+    def init(self, key, params):
+        """A random rope shape on the table (see the module docstring), at rest, its first
+        ``grip_length`` held by the gripper."""
+        scene = self.spec.scene
+        k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
+        modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
+        amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
+        amp = amp * scene.bend_amplitude / modes
+        phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
+        theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
+                                    maxval=scene.heading_range)
+        offset = jax.random.uniform(k_off, (2,), minval=-scene.offset_range,
+                                    maxval=scene.offset_range)
+
+        def theta(s):
+            arg = modes[:, None] * math.pi * s[None, :] / scene.rope_length + phase[:, None]
+            bend = jnp.sin(arg) - jnp.sin(phase[:, None])  # zero at the held end
+            return theta0 + jnp.sum(amp[:, None] * bend, axis=0)
+
+        start = jnp.asarray(_rope_start(scene)) + offset
+        return self._template.replace(x=_place(scene, jnp.asarray(self._rest), theta, start))
+
+    def gripper(self, physics):
+        """The gripper position [m] (3,): the centroid of the held particles."""
+        mask = jnp.asarray(self._held, physics.x.dtype)
+        return jnp.sum(physics.x * mask[:, None], axis=0) / jnp.sum(mask)
+
+    def apply_action(self, physics, action, params):
+        """One env step: the gripper moves at the commanded velocity ``action`` (3,) [m/s]
+        for ``spec.substeps`` substeps; the held particles translate rigidly with it (after
+        every substep their positions are set on the gripper's path, their velocity to the
+        gripper's and their APIC matrix to zero). The speed is capped at ``grip_speed``
+        (norm) and the gripper's end point clipped to :func:`workspace` (the velocity is
+        scaled down accordingly; a clipped component has zero gradient)."""
+        scene, cfg = self.spec.scene, self.cfg
+        T = self.dt
+        held = jnp.asarray(self._held)
+        p = self.gripper(physics)
+        speed = jnp.sqrt(jnp.sum(action * action) + 1e-12)
+        action = action * jnp.minimum(1.0, scene.grip_speed / speed)
+        lo, hi = workspace(scene)
+        target = jnp.clip(p + action * T, jnp.asarray(lo), jnp.asarray(hi))
+        vel = (target - p) / T
+        x0 = physics.x
+        material = params.physics
+        h3 = held[:, None]
+
+        def body(s, i):
+            s = step(cfg, material, s)
+            moved = x0 + vel * ((i + 1).astype(x0.dtype) * cfg.dt)
+            return s.replace(x=jnp.where(h3, moved, s.x),
+                             v=jnp.where(h3, jnp.broadcast_to(vel, s.v.shape), s.v),
+                             C=jnp.where(held[:, None, None], 0.0, s.C)), None
+
+        return checkpointed_scan(body, physics, jnp.arange(self.spec.substeps,
+                                                           dtype=jnp.int32),
+                                 segment=scene.segment)[0]
+
+    def throw_velocities(self) -> np.ndarray:
+        """The canonical throw's gripper velocity per env step (horizon, 3) [m/s]: each
+        phase of ``scene.throw`` is a raised-cosine bump whose per-step averages move the
+        gripper by exactly the phase's displacement."""
+        T = self.dt
+        v = np.zeros((self.horizon, 3), np.float64)
+        for start, steps, *disp in self.spec.scene.throw:
+            edges = np.linspace(0.0, 1.0, steps + 1)
+            cum = edges - np.sin(2 * np.pi * edges) / (2 * np.pi)  # integral of 1 - cos
+            frac = np.diff(cum)
+            for k in range(steps):
+                if 0 <= start + k < self.horizon:
+                    v[start + k] += frac[k] * np.asarray(disp) / T
+        return v.astype(np.float32)
+
+    def canonical_path(self) -> np.ndarray:
+        """The canonical gripper position at the start of each env step (horizon + 1, 3)."""
+        v = self.throw_velocities()
+        p0 = canonical_start(self.spec.scene).astype(np.float64)
+        return (p0 + np.concatenate([np.zeros((1, 3)), np.cumsum(v * self.dt, 0)])
+                ).astype(np.float32)
+
+    def canonical_goal(self) -> np.ndarray:
+        """The goal (N, 3) [m]: the rope after the canonical throw (``throw_velocities``
+        for ``spec.horizon`` steps) from the canonical initial state."""
+        vel = self.throw_velocities()
+        params = self._shape_params()
+        with jax.ensure_compile_time_eval():
+            def run(s):
+                return jax.lax.scan(lambda c, a: (self.apply_action(c, a, params), None), s,
+                                    jnp.asarray(vel))[0]
+
+            state = jax.jit(run)(self._template)
+            return np.asarray(state.x, np.float32)
+
+    def expert(self, state, params):
+        """Track the canonical throw: its velocity at step ``t`` plus ``TRACK_GAIN`` of the
+        gripper's position error to the canonical path per step."""
+        vel = jnp.asarray(self.throw_velocities())
+        path = jnp.asarray(self.canonical_path())
+        t = jnp.clip(state.t, 0, self.horizon - 1)
+        err = path[t] - self.gripper(state.physics)
+        return vel[t] + TRACK_GAIN * err / self.dt
+
+    def object_points(self, physics):
+        return physics.x
+
+    def end_effector(self, physics):
+        """The gripper position [m] (3,) (centroid of the held particles)."""
+        return self.gripper(physics)
 
 
 def _spec() -> TaskSpec:
@@ -346,9 +347,8 @@ def _spec() -> TaskSpec:
     vmax = scene.grip_speed
     return TaskSpec(
         name="whip_rope", horizon=70, action_kind="velocity", action_low=(-vmax,) * 3,
-        action_high=(vmax,) * 3, substeps=16, distance="l2", lam=7.0, aux_reward=False,
-        contact_adjustment=False, obs_stride=2, scene=scene)
+        action_high=(vmax,) * 3, substeps=16, distance="l2", contact_adjustment=False,
+        obs_stride=2, scene=scene)
 
 
-WHIP_ROPE = TaskDef(spec=_spec(), init=init, apply_action=apply_action, goal=goal,
-                    object_points=object_points, end_effector=end_effector, expert=expert)
+WHIP_ROPE = _spec()

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .sim import Cloth, ClothConfig, ClothState, _is_concrete, check_stable, simulate
+from .sim import Cloth, ClothConfig, ClothState, _is_concrete, check_stable, rollout
 
 
 def _check_point(name, p):
@@ -58,14 +58,14 @@ def release(state: ClothState, gripper: int) -> ClothState:
 
 
 def move_gripper(cfg: ClothConfig, cloth: Cloth, state: ClothState, gripper: int, target,
-                 n_steps: int, checkpoint_every: int | None = None) -> ClothState:
+                 n_steps: int, segment: int | None = None) -> ClothState:
     """Move gripper ``gripper`` in a straight line to ``target`` [m] at constant speed over
     ``n_steps`` substeps while simulating the cloth (other grippers hold their velocity)."""
     target = jnp.asarray(target, state.x.dtype)
     vel = (target - state.gripper_pos[gripper]) / (n_steps * cfg.dt)
     gv = jnp.broadcast_to(state.gripper_vel.at[gripper].set(vel),
                           (n_steps,) + state.gripper_vel.shape)
-    out = simulate(cfg, cloth, state, n_steps, gv, checkpoint_every)
+    out = rollout(cfg, cloth, state, n_steps, gv, segment)
     return out.replace(gripper_vel=out.gripper_vel.at[gripper].set(0.0))
 
 
@@ -79,7 +79,8 @@ class PickPlace:
     lower_steps: lowers onto the place point.
     settle_steps: after release, the cloth settles.
     radius: grasp radius [m]. snap: contact adjustment (pick the nearest vertex).
-    gripper: which gripper to use. checkpoint_every: segment length for jax.checkpoint.
+    gripper: which gripper to use. segment: substeps per checkpointed segment
+    (:func:`dax_physics.checkpointed_scan`).
     """
 
     approach_steps: int = 100
@@ -92,7 +93,7 @@ class PickPlace:
     radius: float = 0.02
     snap: bool = True
     gripper: int = 0
-    checkpoint_every: int | None = None
+    segment: int | None = None
 
     @property
     def n_steps(self) -> int:
@@ -127,7 +128,7 @@ def pick_and_place(cfg: ClothConfig, cloth: Cloth, state: ClothState, pick, plac
     start = pick + sc.approach_height * up
     state = state.replace(gripper_pos=state.gripper_pos.at[g].set(start))
     if sc.approach_steps:
-        state = move_gripper(cfg, cloth, state, g, pick, sc.approach_steps, sc.checkpoint_every)
+        state = move_gripper(cfg, cloth, state, g, pick, sc.approach_steps, sc.segment)
     # an invalid (non-finite) pick/place grasps nothing: a no-op for the cloth
     state = grasp(state, g, jnp.where(ok, pick, jnp.nan), sc.radius, snap=False)
     z_lift = jnp.maximum(pick[2], place[2]) + sc.lift_height
@@ -142,6 +143,6 @@ def pick_and_place(cfg: ClothConfig, cloth: Cloth, state: ClothState, pick, plac
                                          (n,) + state.gripper_vel.shape))
     if vels:
         gv = jnp.concatenate(vels)
-        state = simulate(cfg, cloth, state, gv.shape[0], gv, sc.checkpoint_every)
+        state = rollout(cfg, cloth, state, gv.shape[0], gv, sc.segment)
     state = release(state, g).replace(gripper_vel=state.gripper_vel.at[g].set(0.0))
-    return simulate(cfg, cloth, state, sc.settle_steps, None, sc.checkpoint_every)
+    return rollout(cfg, cloth, state, sc.settle_steps, None, sc.segment)

@@ -171,7 +171,7 @@ def grid_step(cfg: GridClothConfig, cloth: GridCloth, state: GridState) -> GridS
     return GridState(x, v)
 
 
-def grid_simulate(cfg: GridClothConfig, cloth: GridCloth, state: GridState, n_steps: int,
+def grid_rollout(cfg: GridClothConfig, cloth: GridCloth, state: GridState, n_steps: int,
                   unroll: int = 1) -> GridState:
     """Run ``n_steps`` substeps as one ``lax.scan`` (``unroll`` substeps per loop body)."""
     def body(s, _):

@@ -5,7 +5,8 @@ Split like the rest of dax-physics:
 * :class:`ClothConfig` (static, hashable): substep, gravity, air drag, table contact and
   friction, self-collision thickness, strain limit, colliders;
 * :class:`Cloth` (pytree of arrays): the material - vertex masses and the spring network
-  with rest lengths, stiffness and damping per spring (differentiable);
+  with rest lengths, stiffness and damping per spring, optionally the table friction as
+  data (differentiable; :func:`scale_moduli` scales it);
 * :class:`ClothState` (pytree of arrays): vertex positions and velocities, gripper
   attachments, gripper poses and velocity commands, collider poses.
 
@@ -23,6 +24,7 @@ import numpy as np
 
 from .. import colliders as _col
 from .._pytree import pytree_dataclass
+from ..scan import checkpointed_scan
 from . import mesh as _mesh
 
 _TINY = 1e-20
@@ -106,6 +108,9 @@ class Cloth:
     pairs (E, 2) int32: spring end vertices. kind (E,) int8: 0 structural, 1 shear, 2 bending.
     rest_length (E,) [m], stiffness (E,) [N/m], damping (E,) [N s/m] (dashpot along spring).
     faces (F, 3) int32: the triangles (for rendering and export).
+    table_friction (2,): static and dynamic Coulomb coefficients [-] of the cloth on the
+        table, as data; ``None`` (the default of :func:`make_cloth`) uses the
+        :class:`ClothConfig`'s ``friction_static`` and ``friction_dynamic``.
     """
 
     rest_pos: jnp.ndarray
@@ -117,10 +122,23 @@ class Cloth:
     stiffness: jnp.ndarray
     damping: jnp.ndarray
     faces: jnp.ndarray
+    table_friction: jnp.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
         return self.mass.shape[-1]
+
+
+def scale_moduli(cloth: Cloth, stretch=1.0, shear=1.0, bend=1.0, damping=1.0,
+                 density=1.0) -> Cloth:
+    """``cloth`` with its structural, shear and bending stiffness, its dashpots and its
+    vertex masses multiplied by the given factors (scalars, possibly traced: the result is
+    differentiable in them). Stiffness scales linearly with the spring modulus
+    (:func:`make_cloth`), so a factor is a modulus relative to the one ``cloth`` was built
+    with; factors of 1 return the same arrays bit for bit."""
+    factor = jnp.stack([jnp.asarray(f, cloth.stiffness.dtype) for f in (stretch, shear, bend)])
+    return cloth.replace(stiffness=cloth.stiffness * factor[cloth.kind.astype(jnp.int32)],
+                         damping=cloth.damping * damping, mass=cloth.mass * density)
 
 
 def make_cloth(vertices, faces, density: float = 0.2, stretch: float = 100.0,
@@ -267,6 +285,15 @@ def check_stable(cfg: ClothConfig, cloth: Cloth):
                          f"stiffness, or raise the vertex mass)")
 
 
+def check_state(state: ClothState) -> None:
+    """Raise ``FloatingPointError`` if positions or velocities went non-finite (NaN/inf).
+    (This syncs with the host: call it after a rollout, not inside one.)"""
+    if not (np.all(np.isfinite(np.asarray(state.x)))
+            and np.all(np.isfinite(np.asarray(state.v)))):
+        raise FloatingPointError("the cloth state became non-finite (NaN/inf): the substep "
+                                 "is probably unstable (see max_stable_dt)")
+
+
 # ----------------------------------------------------------------------------- forces
 
 def _safe_norm(d):
@@ -358,17 +385,22 @@ def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v):
 
 # ----------------------------------------------------------------------------- substep
 
-def _table_contact(cfg: ClothConfig, x, v, free):
-    """Table plane with Coulomb friction; returns (x_new, v_new)."""
+def _table_contact(cfg: ClothConfig, x, v, free, friction=None):
+    """Table plane with Coulomb friction (``friction`` (2,) as data, else the config's);
+    returns (x_new, v_new)."""
     zt = cfg.table_height
     x_pred = x + cfg.dt * v
     contact = (x_pred[:, 2] < zt) & free
-    if cfg.friction_static > 0 or cfg.mu_dynamic > 0:
+    if friction is None:
+        mu_s, mu_d = cfg.friction_static, cfg.mu_dynamic
+    else:
+        mu_s, mu_d = friction[0], friction[1]
+    if friction is not None or cfg.friction_static > 0 or cfg.mu_dynamic > 0:
         dvn = jnp.where(contact, jnp.maximum(-v[:, 2], 0.0), 0.0)  # normal impulse / mass
         vt = v[:, :2]
         vtn = _safe_norm(vt)
-        stick = vtn <= cfg.friction_static * dvn
-        scale = jnp.where(stick, 0.0, jnp.maximum(1.0 - cfg.mu_dynamic * dvn / vtn, 0.0))
+        stick = vtn <= mu_s * dvn
+        scale = jnp.where(stick, 0.0, jnp.maximum(1.0 - mu_d * dvn / vtn, 0.0))
         vt = jnp.where(contact[:, None], vt * scale[:, None], vt)
         v = jnp.concatenate([vt, v[:, 2:]], axis=1)
         x_pred = x + cfg.dt * v
@@ -407,8 +439,9 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
 
     Order: spring, dashpot, gravity, drag and self-collision forces -> velocity; SDF
     colliders (velocity projection); attached vertices take their gripper's velocity; table
-    contact with Coulomb friction (position clamp, approaching normal velocity removed);
-    position update; strain limiting; grippers and colliders advance.
+    contact with Coulomb friction (position clamp, approaching normal velocity removed;
+    the coefficients are ``cloth.table_friction`` when set); position update; strain
+    limiting; grippers and colliders advance.
     """
     x, v = state.x, state.v
     dt = cfg.dt
@@ -426,7 +459,7 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
     v_grip = (state.grip.T @ state.gripper_vel) / jnp.maximum(cnt, 1.0)[:, None]
     v = jnp.where(attached[:, None], v_grip, v)
     if cfg.table_height is not None:
-        x_new, v = _table_contact(cfg, x, v, ~attached)
+        x_new, v = _table_contact(cfg, x, v, ~attached, cloth.table_friction)
     else:
         x_new = x + dt * v
     if cfg.strain_limit is not None:
@@ -439,16 +472,16 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
                          colliders=cs, t=state.t + dt)
 
 
-def simulate(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_steps: int,
-             gripper_vel=None, checkpoint_every: int | None = None, unroll: int = 1
-             ) -> ClothState:
-    """Run ``n_steps`` substeps as a ``lax.scan``.
+def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_steps: int,
+            gripper_vel=None, segment: int | None = None, unroll: int = 1) -> ClothState:
+    """Run ``n_steps`` substeps of :func:`step` as one scan.
 
     gripper_vel: optional (n_steps, G, 3) [m/s] gripper velocity command per substep
         (otherwise ``state.gripper_vel`` is held).
-    checkpoint_every: if set, the scan runs in segments of this many substeps, each under
-        ``jax.checkpoint``, so reverse-mode memory grows with the number of segments rather
-        than substeps; results and gradients are identical either way.
+    segment: substeps per checkpointed segment (:func:`dax_physics.checkpointed_scan`,
+        whose remainder rule applies), so reverse-mode memory grows with the number of
+        segments rather than substeps; ``None``: no checkpointing. Forward values are the
+        same either way.
     Raises ``ValueError`` (when called with concrete arrays) if ``cfg.dt`` is unstable.
     """
     check_stable(cfg, cloth)
@@ -466,27 +499,8 @@ def simulate(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_steps: int,
             s = s.replace(gripper_vel=gv)
         return step(cfg, cloth, s), None
 
-    if not checkpoint_every or checkpoint_every >= n_steps:
-        out, _ = jax.lax.scan(body, state, gripper_vel, length=n_steps, unroll=unroll)
-        return out
-    seg = int(checkpoint_every)
-    n_seg, rem = divmod(n_steps, seg)
-
-    @jax.checkpoint
-    def segment(s, gv):
-        s, _ = jax.lax.scan(body, s, gv, length=seg, unroll=unroll)
-        return s
-
-    def outer(s, gv):
-        return segment(s, gv), None
-
-    xs = None if gripper_vel is None else gripper_vel[:n_seg * seg].reshape(
-        (n_seg, seg) + gripper_vel.shape[1:])
-    state, _ = jax.lax.scan(outer, state, xs, length=n_seg)
-    if rem:
-        tail = None if gripper_vel is None else gripper_vel[n_seg * seg:]
-        state, _ = jax.lax.scan(body, state, tail, length=rem, unroll=unroll)
-    return state
+    return checkpointed_scan(body, state, gripper_vel, length=n_steps, segment=segment,
+                             unroll=unroll)[0]
 
 
 def energy(cfg: ClothConfig, cloth: Cloth, state: ClothState):

@@ -1,7 +1,7 @@
 """Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-fold``, ``cloth-sag-study``.
 
-``dax_physics.bench`` registers these with :func:`add_subparsers`; standalone use:
-``python -m dax_physics.bench_cloth cloth-drop --n 64 --substeps 1000 --json``.
+``dax_physics.tools.bench`` registers these with :func:`add_subparsers`; standalone use:
+``python -m dax_physics.tools.bench_cloth cloth-drop --n 64 --substeps 1000 --json``.
 """
 
 from __future__ import annotations
@@ -15,20 +15,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import cloth as c
-from .bench import _emit, _median_time, _peak_rss_mb
+from .. import cloth as c
+from .timing import emit, median_time, peak_rss_mb
 
 # ----------------------------------------------------------------------------- cloth-drop
 
 def run_cloth_drop(args):
     cfg, cloth, state = c.cloth_drop_scene(args.n, dt=args.dt)
     steps = args.substeps
-    sim = jax.jit(lambda s: c.grid_simulate(cfg, cloth, s, steps, unroll=args.unroll))
+    sim = jax.jit(lambda s: c.grid_rollout(cfg, cloth, s, steps, unroll=args.unroll))
     t0 = time.perf_counter()
     out = jax.block_until_ready(sim(state))
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(sim(state))  # warm-up
-    med, ts = _median_time(lambda: sim(state), args.reps)
+    med, ts = median_time(lambda: sim(state), args.reps)
     x = np.asarray(out.x)
     rec = dict(bench="cloth-drop", impl="dax-jax-stencil", n=args.n, substeps=steps,
                dt=cfg.dt, reps=args.reps, substeps_per_s=steps / med,
@@ -36,7 +36,7 @@ def run_cloth_drop(args):
                mean_height=float(x[2].mean()), min_height=float(x[2].min()),
                reference_mean_height=0.008108, finite=bool(np.isfinite(x).all()),
                backend=jax.default_backend(), jax=jax.__version__, threads=os.cpu_count())
-    _emit(rec, args.json)
+    emit(rec, args.json)
     return rec
 
 
@@ -58,7 +58,7 @@ def fold_scene(n: int = 32, size: float = 0.3, dtype=jnp.float32):
     sc = c.PickPlace(approach_steps=n_of(0.02 * t_scale), lift_steps=n_of(0.15 * t_scale),
                      move_steps=n_of(0.375 * t_scale), lower_steps=n_of(0.15 * t_scale),
                      settle_steps=n_of(0.375 * t_scale), lift_height=0.08, radius=0.5 * sp,
-                     checkpoint_every=100)
+                     segment=100)
     pick = jnp.zeros(3, dtype)
     place = jnp.asarray([0.9 * size, 0.9 * size, sp], dtype)
     return cfg, cl, c.ClothState.create(cl), sc, pick, place
@@ -79,17 +79,17 @@ def run_cloth_fold(args):
     t0 = time.perf_counter()
     val, grad = jax.block_until_ready(bwd(place))
     c_bwd = time.perf_counter() - t0
-    t_fwd, _ = _median_time(lambda: fwd(place), args.reps)
-    t_bwd, _ = _median_time(lambda: bwd(place), args.reps)
+    t_fwd, _ = median_time(lambda: fwd(place), args.reps)
+    t_bwd, _ = median_time(lambda: bwd(place), args.reps)
     rec = dict(bench="cloth-fold", n=args.n, vertices=cl.n_vertices, substeps=sc.n_steps,
-               dt=cfg.dt, self_collision=True, checkpoint_every=sc.checkpoint_every,
+               dt=cfg.dt, self_collision=True, segment=sc.segment,
                forward_s=t_fwd, forward_backward_s=t_bwd,
                substeps_per_s_forward=sc.n_steps / t_fwd, compile_forward_s=c_fwd,
                compile_forward_backward_s=c_bwd, loss=float(val),
                grad_place=np.asarray(grad).tolist(),
                finite=bool(np.isfinite(np.asarray(grad)).all()),
-               peak_rss_mb=_peak_rss_mb(), reps=args.reps)
-    _emit(rec, args.json)
+               peak_rss_mb=peak_rss_mb(), reps=args.reps)
+    emit(rec, args.json)
     return rec
 
 
@@ -111,7 +111,7 @@ def _curtain_sag(n, dt_frac, size=0.3, t_end=2.0):
     st = c.grasp(st, 1, v[top[-1]], 0.0501)
     steps = int(round(t_end / cfg.dt))
     t0 = time.perf_counter()
-    out = jax.block_until_ready(jax.jit(lambda s: c.simulate(cfg, cl, s, steps))(st))
+    out = jax.block_until_ready(jax.jit(lambda s: c.rollout(cfg, cl, s, steps))(st))
     wall = time.perf_counter() - t0
     return dict(n=n, dt=cfg.dt, dt_fraction=dt_frac, substeps=steps,
                 sag=float(size - out.x[top[len(top) // 2], 2]), wall_s=wall)
@@ -155,7 +155,7 @@ def run_sag_study(args):
         rec["chart"] = os.path.join(args.out, "cloth_sag_study.png")
     except ImportError:
         rec["chart"] = None
-    _emit(rec, args.json)
+    emit(rec, args.json)
     return rec
 
 
@@ -189,7 +189,7 @@ def add_subparsers(subparsers):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m dax_physics.bench_cloth")
+    parser = argparse.ArgumentParser(prog="python -m dax_physics.tools.bench_cloth")
     add_subparsers(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     args.func(args)

@@ -1,14 +1,14 @@
 """Benchmarks of dax-physics. Each subcommand prints one JSON line (speed is measured here,
 never asserted in tests).
 
-    python -m dax_physics.bench mpm-block --material fluid --grid 32 --particles 8192 \\
+    python -m dax_physics.tools.bench mpm-block --material fluid --grid 32 --particles 8192 \\
         --substeps 100 --json
-    python -m dax_physics.bench mpm-grad --substeps 100 --checkpoint-segments 10 --json
-    python -m dax_physics.bench active-region --json
-    python -m dax_physics.bench mpm-study --out bench_out --json
-    python -m dax_physics.bench cloth-drop --n 64 --substeps 1000 --json
-    python -m dax_physics.bench cloth-fold --json
-    python -m dax_physics.bench cloth-sag-study --out bench_out --json
+    python -m dax_physics.tools.bench mpm-grad --substeps 100 --checkpoint-segments 10 --json
+    python -m dax_physics.tools.bench active-region --json
+    python -m dax_physics.tools.bench mpm-study --out bench_out --json
+    python -m dax_physics.tools.bench cloth-drop --n 64 --substeps 1000 --json
+    python -m dax_physics.tools.bench cloth-fold --json
+    python -m dax_physics.tools.bench cloth-sag-study --out bench_out --json
 
 Throughputs are medians over repetitions after a warm-up run; compile time is measured by
 lowering and compiling ahead of time. Set ``JAX_COMPILATION_CACHE_DIR`` off (the default)
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import time
 
@@ -27,35 +26,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import mpm, sampling
-from .materials import Material
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def _median_time(fn, reps: int, min_time: float = 0.0):
-    """Median wall time [s] of ``fn()`` (its result waited for) over at least ``reps`` calls
-    and ``min_time`` s; returns (median, all times)."""
-    times = []
-    start = time.perf_counter()
-    while len(times) < reps or time.perf_counter() - start < min_time:
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-        if len(times) >= 50:
-            break
-    return float(np.median(times)), times
-
-
-def _emit(record: dict, as_json: bool):
-    if as_json:
-        print(json.dumps(record), flush=True)
-    else:
-        for k, v in record.items():
-            print(f"{k:>24}: {v}")
-
+from .. import mpm, sampling
+from ..materials import Material
+from .timing import emit, median_time, peak_rss_mb
 
 # --------------------------------------------------------------------------- block drop
 
@@ -94,12 +67,12 @@ def cmd_mpm_block(args):
     run = mpm.rollout
     if args.batch:
         state = jax.tree.map(lambda a: jnp.broadcast_to(a, (args.batch,) + a.shape), state)
-        run = jax.jit(jax.vmap(lambda p, s: mpm._rollout(cfg, p, s, n), in_axes=(None, 0)))
+        run = jax.jit(jax.vmap(lambda p, s: mpm.rollout(cfg, p, s, n), in_axes=(None, 0)))
         t0 = time.perf_counter()
         compiled = run.lower(params, state).compile()
     else:
         t0 = time.perf_counter()
-        compiled = jax.jit(lambda p, s: mpm._rollout(cfg, p, s, n)).lower(params, state).compile()
+        compiled = jax.jit(lambda p, s: mpm.rollout(cfg, p, s, n)).lower(params, state).compile()
     compile_s = time.perf_counter() - t0
     out = compiled(params, state)
     jax.block_until_ready(out)
@@ -107,7 +80,7 @@ def cmd_mpm_block(args):
     def go():
         jax.block_until_ready(compiled(params, state))
 
-    med, times = _median_time(go, args.reps, args.min_time)
+    med, times = median_time(go, args.reps, args.min_time)
     x = np.asarray(out.x)
     scenes = max(args.batch, 1)
     record = dict(
@@ -119,7 +92,7 @@ def cmd_mpm_block(args):
         mean_position=x.reshape(-1, 3).astype(np.float64).mean(0).tolist(),
         finite=bool(np.isfinite(x).all()), escaped=bool(np.asarray(out.escaped).any()),
         backend=jax.default_backend(), jax=jax.__version__)
-    _emit(record, args.json)
+    emit(record, args.json)
 
 
 # --------------------------------------------------------------------------- gradient memory
@@ -133,26 +106,26 @@ def cmd_mpm_grad(args):
         raise SystemExit(f"--substeps {n} must be a multiple of --checkpoint-segments")
 
     def loss(v0):
-        out = mpm._rollout(cfg, params, state.replace(v=v0), n, seg)
+        out = mpm.rollout(cfg, params, state.replace(v=v0), n, seg)
         return jnp.mean(out.x[:, 2])
 
     grad = jax.jit(jax.grad(loss))
-    rss0 = _peak_rss_mb()
+    rss0 = peak_rss_mb()
     t0 = time.perf_counter()
     compiled = grad.lower(state.v).compile()
     compile_s = time.perf_counter() - t0
     mem = compiled.memory_analysis()
     g = compiled(state.v)
     jax.block_until_ready(g)
-    med, times = _median_time(lambda: jax.block_until_ready(compiled(state.v)), args.reps, 0.0)
+    med, times = median_time(lambda: jax.block_until_ready(compiled(state.v)), args.reps, 0.0)
     record = dict(
         bench="mpm-grad", material=args.material, grid=args.grid, particles=args.particles,
         substeps=n, checkpoint_segments=args.checkpoint_segments, segment_length=seg,
-        grad_s=med, compile_s=compile_s, peak_rss_mb=_peak_rss_mb(),
+        grad_s=med, compile_s=compile_s, peak_rss_mb=peak_rss_mb(),
         peak_rss_before_mb=rss0,
         xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2 ** 20,
         grad_norm=float(jnp.linalg.norm(g)), finite=bool(jnp.all(jnp.isfinite(g))))
-    _emit(record, args.json)
+    emit(record, args.json)
 
 
 # --------------------------------------------------------------------------- active region
@@ -196,12 +169,12 @@ def cmd_active_region(args):
         params = cfg.params
         t0 = time.perf_counter()
         compiled = jax.jit(
-            lambda p, s, cfg=cfg: mpm._rollout(cfg, p, s, args.substeps)).lower(
+            lambda p, s, cfg=cfg: mpm.rollout(cfg, p, s, args.substeps)).lower(
                 params, state).compile()
         compile_s = time.perf_counter() - t0
         out = compiled(params, state)
         jax.block_until_ready(out)
-        med, times = _median_time(
+        med, times = median_time(
             lambda c=compiled, p=params, s=state: jax.block_until_ready(c(p, s)), args.reps, 0.0)
         finals[name] = np.asarray(out.x)
         results[name] = dict(
@@ -213,7 +186,7 @@ def cmd_active_region(args):
         particles=int(finals["full"].shape[0]), substeps=args.substeps, **results,
         speedup=results["window"]["substeps_per_s"] / results["full"]["substeps_per_s"],
         max_abs_position_diff_m=float(np.max(np.abs(finals["window"] - finals["full"]))))
-    _emit(record, args.json)
+    emit(record, args.json)
 
 
 # --------------------------------------------------------------------------- speed vs accuracy
@@ -252,7 +225,7 @@ def measure_bar(cells: int, ppc: int, dt_fraction: float):
     @jax.jit
     def run(s):
         def body(s, _):
-            s = mpm.substep(cfg, params, s)
+            s = mpm.step(cfg, params, s)
             return s, jnp.sum(jnp.where(end, s.v[:, 0], 0.0)) / jnp.sum(end)
         return jax.lax.scan(body, s, None, length=n)[1]
 
@@ -322,13 +295,13 @@ def cmd_mpm_study(args):
             fig.tight_layout()
             fig.savefig(out / "mpm_study.png", dpi=120)
             record["chart"] = str(out / "mpm_study.png")
-    _emit(record, args.json)
+    emit(record, args.json)
 
 
 # --------------------------------------------------------------------------- CLI
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m dax_physics.bench", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m dax_physics.tools.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
 

@@ -1,7 +1,7 @@
 """A small physics demo: water, an elastic (tofu) cube and a dough cube share one MPM grid;
 a box collider presses the dough and lifts off again.
 
-    python -m dax_physics.demo --out demo_out
+    python -m dax_physics.tools.demo --out demo_out
 
 Prints its figures as one JSON object (throughput, mass conservation, the dough's permanent
 flattening versus the tofu's recovery) and writes ``demo_out/mpm_demo.png`` (side views at
@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import mpm, sampling
-from .colliders import ColliderSpec, ColliderState
-from .materials import dough, tofu, water
+from .. import mpm, sampling
+from ..colliders import ColliderSpec, ColliderState
+from ..materials import dough, tofu, water
 
 COLORS = np.array([[0.15, 0.45, 0.95], [0.95, 0.85, 0.35], [0.85, 0.45, 0.25]])
 NAMES = ("water", "tofu", "dough")
@@ -114,7 +114,7 @@ def draw(path: pathlib.Path, snaps, mat, titles, size):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m dax_physics.demo", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m dax_physics.tools.demo", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="demo_out", help="directory for the picture")
     ap.add_argument("--grid", type=int, default=32)

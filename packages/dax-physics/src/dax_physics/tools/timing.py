@@ -1,0 +1,48 @@
+"""Timing helpers for benchmark scripts: medians of repeated calls, peak memory, and one
+JSON line per record. Speed is measured with these and printed, never asserted in tests."""
+
+from __future__ import annotations
+
+import json
+import resource
+import time
+
+import jax
+import numpy as np
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far [MiB]."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def median_time(fn, reps: int, min_time: float = 0.0, max_reps: int = 50):
+    """Median wall time [s] of ``fn()`` (its result waited for with
+    ``jax.block_until_ready``) over at least ``reps`` calls and ``min_time`` seconds, at
+    most ``max_reps`` calls; returns ``(median, all times)``."""
+    times = []
+    start = time.perf_counter()
+    while len(times) < reps or time.perf_counter() - start < min_time:
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+        if len(times) >= max_reps:
+            break
+    return float(np.median(times)), times
+
+
+def timed_compile(fn, *args):
+    """``(compiled, seconds)``: ``fn`` (a ``jax.jit`` function) lowered and compiled ahead
+    of time for ``args``."""
+    t0 = time.perf_counter()
+    compiled = fn.lower(*args).compile()
+    return compiled, time.perf_counter() - t0
+
+
+def emit(record: dict, as_json: bool) -> None:
+    """Print ``record`` as one JSON line (``as_json``) or as aligned ``key: value`` lines."""
+    if as_json:
+        print(json.dumps(record), flush=True)
+    else:
+        for k, v in record.items():
+            print(f"{k:>24}: {v}")

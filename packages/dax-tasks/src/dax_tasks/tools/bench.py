@@ -1,0 +1,136 @@
+"""Benchmark of the tasks: per task and batch size, reset time, forward step time,
+step-plus-gradient time (gradient of the summed reward with respect to the actions) and
+the compile time of each, with the resolution the task runs at. One JSON line per task on
+stdout (``--json``); progress on stderr. Speed is measured here, never asserted in tests.
+
+    python -m dax_tasks.tools.bench --json                         # all tasks, batch 1 and 8
+    python -m dax_tasks.tools.bench --json --tasks fold_cloth1 --batch 1 --reps 5
+
+Times are medians over ``--reps`` calls after the compiled function's first call; compile
+times come from lowering and compiling ahead of time (set ``JAX_COMPILATION_CACHE_DIR``
+unset to see cold compiles). ``per_env_step_s`` = step time / batch size. The actions
+timed are the task's scripted expert's (so the gripper touches the object), else the
+middle of the action box. ``grad_finite`` says whether that gradient was finite
+(``grad_norm`` is null when it was not, so the output stays strict JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dax_physics.tools.timing import emit, median_time, peak_rss_mb, timed_compile
+
+from ..registry import TASKS, available, make
+from ..wrappers import VmapWrapper
+
+#: Scene fields reported as the task's resolution when the scene has them.
+RESOLUTION_FIELDS = ("dx", "dt", "domain", "window", "ppc", "n", "size", "spacing", "shape")
+
+
+def resolution(env) -> dict:
+    """What a task models: object points, substeps per env step and the scene's grid."""
+    out = {"object_points": int(env.n_object_points), "substeps": env.spec.substeps,
+           "horizon": env.horizon, "action_kind": env.spec.action_kind,
+           "sim_time_per_step_s": round(env.dt, 6)}
+    scene = env.spec.scene
+    if dataclasses.is_dataclass(scene):
+        for f in RESOLUTION_FIELDS:
+            if hasattr(scene, f):
+                v = getattr(scene, f)
+                out[f"scene_{f}"] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def bench_batch(env, batch: int | None, reps: int) -> dict:
+    """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
+    argument of every timed function (data, as a learner passes them)."""
+    if batch is not None:
+        env = VmapWrapper(env, batch_size=batch)
+    params = env.default_params
+    key = jax.random.PRNGKey(0)
+    reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
+    t_reset, _ = median_time(lambda: reset(key, params), reps)
+    _, state = reset(key, params)
+    if env.has_expert:
+        action = jax.jit(env.expert_action)(state, params)
+    else:
+        mid = 0.5 * (np.asarray(env.spec.action_low) + np.asarray(env.spec.action_high))
+        shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
+        action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
+    step, c_step = timed_compile(jax.jit(env.step), state, action, params)
+    t_step, _ = median_time(lambda: step(state, action, params), reps)
+
+    def total_reward(a, s, p):
+        return jnp.sum(env.step(s, a, p)[2])
+
+    grad = jax.jit(jax.value_and_grad(total_reward))
+    grad_c, c_grad = timed_compile(grad, action, state, params)
+    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps)
+    g = np.asarray(grad_c(action, state, params)[1])
+    finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
+    b = 1 if batch is None else batch
+    return {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
+            "step_grad_s": t_grad, "compile_reset_s": c_reset, "compile_step_s": c_step,
+            "compile_grad_s": c_grad, "grad_finite": finite,
+            "grad_norm": float(np.linalg.norm(g)) if finite else None}
+
+
+def bench_task(name: str, batches, reps: int, overrides: dict | None = None) -> dict:
+    env = make(name, **(overrides or {}))
+    record = {"bench": "task", "task": name, **resolution(env), "batches": []}
+    for b in batches:
+        print(f"[dax_tasks.tools.bench] {name} batch {b}", file=sys.stderr, flush=True)
+        record["batches"].append(bench_batch(env, None if b == 1 else b, reps))
+    record["peak_rss_mb"] = peak_rss_mb()
+    record["device"] = str(jax.devices()[0])
+    return record
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m dax_tasks.tools.bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", default="all",
+                   help="comma-separated task names or 'all' (the implemented ones)")
+    p.add_argument("--batch", default="1,8", help="comma-separated batch sizes")
+    p.add_argument("--reps", type=int, default=3, help="timed calls per measurement")
+    p.add_argument("--json", action="store_true", help="one JSON line per task")
+    return p
+
+
+def parse_tasks(text: str) -> list:
+    if text == "all":
+        return list(available())
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [t for t in names if t not in TASKS]
+    if bad:
+        raise ValueError(f"unknown task(s) {bad}; valid names: {', '.join(TASKS)}")
+    return names
+
+
+def main(argv=None, overrides: dict | None = None) -> list:
+    args = build_parser().parse_args(argv)
+    try:
+        names = parse_tasks(args.tasks)
+        batches = [int(b) for b in args.batch.split(",")]
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    if any(b < 1 for b in batches) or args.reps < 1:
+        print("error: batch sizes and --reps must be >= 1", file=sys.stderr)
+        raise SystemExit(2)
+    records = []
+    for name in names:
+        rec = bench_task(name, batches, args.reps, overrides)
+        emit(rec, args.json)
+        records.append(rec)
+    return records
+
+
+if __name__ == "__main__":
+    main()
