@@ -101,7 +101,7 @@ class ClothParams:
     density: areal density [kg/m^2]; stretch, shear, bend: spring moduli [N/m] of the
     structural, shear and bending springs (:func:`dax_physics.cloth.make_cloth`); damping:
     dashpot modulus [N s/m]; friction_static, friction_dynamic: Coulomb coefficients [-]
-    of the cloth on the table.
+    of the cloth on the table. ``replace`` casts new values to float32 (no retrace).
     """
 
     density: jnp.ndarray
@@ -121,6 +121,11 @@ class ClothParams:
                              f"{sorted(DEFAULT_MATERIAL)}")
         merged = {**DEFAULT_MATERIAL, **values}
         return ClothParams(**{k: jnp.asarray(v, jnp.float32) for k, v in merged.items()})
+
+    def replace(self, **changes) -> ClothParams:
+        from .env import replace_cast
+
+        return replace_cast(self, changes)
 
 
 #: The cloth tasks' default material: 0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m,

@@ -63,10 +63,18 @@ class EnvParams:
     physics: Any
 
     def replace(self, **changes) -> EnvParams:
-        for name, value in changes.items():
-            if name != "physics" and hasattr(self, name):
-                changes[name] = jnp.asarray(value, jnp.result_type(getattr(self, name)))
-        return dataclasses.replace(self, **changes)
+        return replace_cast(self, changes, keep=("physics",))
+
+
+def replace_cast(params, changes: dict, keep=()):
+    """``dataclasses.replace(params, **changes)`` with each new value (but those named in
+    ``keep``) cast to the dtype of the value it replaces, so a Python float does not make a
+    weakly typed leaf that retraces a jitted function."""
+    for name, value in changes.items():
+        old = getattr(params, name, None)
+        if name not in keep and old is not None:
+            changes[name] = jnp.asarray(value, jnp.result_type(old))
+    return dataclasses.replace(params, **changes)
 
 
 @pytree_dataclass
