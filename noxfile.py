@@ -42,6 +42,8 @@ LAYERS = list(SIBLINGS)
 
 # Heavy dependencies that belong to higher layers; dax-physics must not pull them in.
 NOT_IN_PHYSICS = ["gymnasium", "h5py", "flax", "optax"]
+# Optional everywhere: only the `gym` extra of dax-tasks (and test extras) install it.
+OPTIONAL = ["gymnasium"]
 
 # A persistent XLA compilation cache outside the repo, shared by every session, so
 # repeated runs do not recompile the same programs. XLA_FLAGS is left as it is.
@@ -137,11 +139,12 @@ def algos(session: nox.Session) -> None:
     ids=["physics+tasks", "physics+tasks+data", "all"],
 )
 def combos(session: nox.Session, combo: list[str]) -> None:
-    """Install a combination (no test extras); check dependencies and imports."""
+    """Install a combination (no test extras); check dependencies and imports, and that no
+    optional dependency (gymnasium) came with it."""
     _install_local(session, combo)
     session.run("uv", "pip", "check")
     _assert_importable(session, [_module(d) for d in combo])
-    _assert_not_importable(session, [_module(d) for d in LAYERS if d not in combo])
+    _assert_not_importable(session, [_module(d) for d in LAYERS if d not in combo] + OPTIONAL)
 
 
 @nox.session

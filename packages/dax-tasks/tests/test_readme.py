@@ -1,21 +1,33 @@
-"""The custom-task example in README.md runs and stays under 60 lines."""
+"""The README's examples run: the custom task (under 60 lines) and the system
+identification, which must recover the rope's Young's modulus."""
 
 import re
 from pathlib import Path
 
+import pytest
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
-def _example() -> str:
+def _example(heading: str) -> str:
     text = README.read_text()
-    head = text.index("### A custom task")
+    head = text.index(heading)
     return re.search(r"```python\n(.*?)```", text[head:], re.S).group(1)
 
 
 def test_custom_task_example_is_short_and_runs(capsys):
-    code = _example()
+    code = _example("### A custom task")
     n = len(code.strip().splitlines())
     assert n < 60, f"expected the README example under 60 lines, got {n}"
     exec(compile(code, str(README), "exec"), {"__name__": "readme_example"})
     out = capsys.readouterr().out
     assert "r_gt" in out and "done True" in out, f"unexpected example output: {out!r}"
+
+
+def test_system_identification_example_recovers_the_youngs_modulus(capsys):
+    code = _example("### Differentiable parameters")
+    exec(compile(code, str(README), "exec"), {"__name__": "readme_example"})
+    out = capsys.readouterr().out
+    match = re.search(r"recovered E = (\d+) Pa", out)
+    assert match, f"unexpected example output: {out!r}"
+    assert float(match.group(1)) == pytest.approx(2e4, rel=0.01), out
