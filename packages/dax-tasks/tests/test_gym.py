@@ -18,12 +18,10 @@ def test_all_nine_ids_registered():
         assert env_id in gym.registry, env_id
 
 
-# one per kind of action: pick-and-place (fold / unfold), velocity (whip), velocity and
-# wrist rotation (pour), push (push_rope); and the image observation modes
-@pytest.mark.parametrize("env_id, kwargs", [
-    ("dax/FoldCloth1-v0", {}), ("dax/UnfoldCloth1-v0", {}), ("dax/WhipRope-v0", {}),
-    ("dax/PourWater-v0", {}), ("dax/PushRope-v0", {}),
+# all nine ids, and the image observation modes
+@pytest.mark.parametrize("env_id, kwargs", [(i, {}) for i in GYM_IDS.values()] + [
     ("dax/FoldCloth1-v0", {"obs_mode": "rgb", "image_size": 32}),
+    ("dax/UnfoldCloth3-v0", {"obs_mode": "height", "image_size": 32}),
     ("dax/FoldTShirt-v0", {"obs_mode": "rgbd", "image_size": 32})])
 def test_check_env_passes(env_id, kwargs):
     env = gym.make(env_id, render_mode="rgb_array", **kwargs)

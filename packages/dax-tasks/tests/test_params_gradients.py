@@ -3,6 +3,9 @@ against central finite differences (float32, in log-space, step 5 %): the rope's
 modulus (Whip-Rope), the cloth's stretch modulus (Fold-Cloth-1) and the water's viscosity
 (Pour-Water). The params are data: the same compiled function serves every value.
 
+The same compiled gradient also gives the return's gradient with respect to the actions,
+which must be finite and non-zero (the gradient-based planners and learners need it).
+
 Each setup is chosen so that the return depends smoothly and measurably on the parameter:
 the rope is pulled along its length (its stretch sets where it ends up), the cloth is carried
 over a frictionless table (with Coulomb stick-slip on the table the return is not smooth on
@@ -23,13 +26,13 @@ import dax_tasks
 H = 0.05  # central-difference step in log(parameter)
 
 
-def _return(env, actions, with_param):
-    """``R(x)``: the summed reward of ``actions`` from the episode of ``PRNGKey(0)`` with the
-    parameter set by ``with_param(params, x)``."""
+def _return(env, with_param):
+    """``R(actions, x)``: the summed reward of ``actions`` from the episode of
+    ``PRNGKey(0)`` with the parameter set by ``with_param(params, x)``."""
     params = env.default_params
     _, start = jax.jit(env.reset)(jax.random.PRNGKey(0), params)
 
-    def total(x):
+    def total(actions, x):
         p = with_param(params, x)
 
         def body(s, a):
@@ -41,11 +44,14 @@ def _return(env, actions, with_param):
     return total
 
 
-def _check(total, x0, rtol, what):
-    value, grad = jax.jit(jax.value_and_grad(total))(x0)
-    f = jax.jit(total)
-    fd = (float(f(x0 + H)) - float(f(x0 - H))) / (2 * H)
+def _check(total, actions, x0, rtol, what):
+    value, (g_actions, grad) = jax.jit(jax.value_and_grad(total, argnums=(0, 1)))(
+        actions, x0)
     assert np.isfinite(float(value)) and np.isfinite(float(grad)), (value, grad)
+    assert bool(jnp.all(jnp.isfinite(g_actions))), f"non-finite action gradient {g_actions}"
+    assert float(jnp.max(jnp.abs(g_actions))) > 0.0, f"zero action gradient {g_actions}"
+    f = jax.jit(total)
+    fd = (float(f(actions, x0 + H)) - float(f(actions, x0 - H))) / (2 * H)
     # the difference of the two returns must span many float32 ulps of the return
     ulps = abs(fd) * 2 * H / (np.finfo(np.float32).eps * abs(float(value)))
     assert ulps > 50, (f"{what}: the return hardly depends on it (the central difference "
@@ -54,7 +60,7 @@ def _check(total, x0, rtol, what):
         f"d return / d log({what}): autodiff {float(grad):.6g}, central FD {fd:.6g}")
 
 
-def test_gradient_wrt_the_ropes_youngs_modulus():
+def test_gradients_wrt_the_ropes_youngs_modulus_and_the_actions():
     from dax_tasks import whip_rope as wr
 
     scene = dataclasses.replace(wr.WHIP_ROPE.scene, throw=((0, 8, -0.015, 0.0, 0.005),))
@@ -65,11 +71,11 @@ def test_gradient_wrt_the_ropes_youngs_modulus():
         return params.replace(physics=params.physics.with_youngs_modulus(
             0, jnp.exp(log_e), wr.ROPE.poisson_ratio))
 
-    _check(_return(env, pull, with_e), float(np.log(wr.ROPE.youngs_modulus)), 0.01,
+    _check(_return(env, with_e), pull, float(np.log(wr.ROPE.youngs_modulus)), 0.01,
            "Young's modulus")
 
 
-def test_gradient_wrt_the_cloths_stretch_modulus():
+def test_gradients_wrt_the_cloths_stretch_modulus_and_the_actions():
     env = dax_tasks.make("fold_cloth1", cache_goal=False)
     params = env.default_params
     _, start = jax.jit(env.reset)(jax.random.PRNGKey(0), params)
@@ -79,10 +85,10 @@ def test_gradient_wrt_the_cloths_stretch_modulus():
         return params.replace(physics=params.physics.replace(
             stretch=jnp.exp(log_k), friction_static=0.0, friction_dynamic=0.0))
 
-    _check(_return(env, fold, with_stretch), float(np.log(10.0)), 0.05, "stretch")
+    _check(_return(env, with_stretch), fold, float(np.log(10.0)), 0.05, "stretch")
 
 
-def test_gradient_wrt_the_fluids_viscosity():
+def test_gradients_wrt_the_fluids_viscosity_and_the_actions():
     env = dax_tasks.make("pour_water", cache_goal=False)
     tilt = jnp.asarray([[0.2, 0.0, 0.0, 3.0]] * 3)  # move towards the target and tilt
 
@@ -91,4 +97,4 @@ def test_gradient_wrt_the_fluids_viscosity():
         return params.replace(physics=material.replace(
             viscosity=material.viscosity.at[0].set(jnp.exp(log_eta))))
 
-    _check(_return(env, tilt, with_viscosity), float(np.log(1.0)), 0.01, "viscosity")
+    _check(_return(env, with_viscosity), tilt, float(np.log(1.0)), 0.01, "viscosity")

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dax_physics import pytree_dataclass
+from dax_physics import MPMConfig, check_params, pytree_dataclass
 
 from . import rewards
 from .spec import Box, TaskSpec
@@ -329,3 +329,36 @@ class Env:
     @property
     def unwrapped(self) -> Env:
         return self
+
+
+class MPMEnv(Env):
+    """An env whose physics is one MLS-MPM scene (:mod:`dax_physics.mpm`): ``self.cfg``
+    is built once from the scene by the subclass's ``mpm_config(scene)``, and
+    ``params.physics`` is its :class:`dax_physics.MaterialParams` (the material table and
+    the colliders' friction), checked eagerly by :func:`dax_physics.check_params`. The
+    object points are the particles."""
+
+    def __init__(self, spec: TaskSpec):
+        super().__init__(spec)
+        self.cfg = self.mpm_config(spec.scene)  # raises if dt is unstable for the defaults
+        with jax.ensure_compile_time_eval():
+            self._physics_params = self.cfg.params
+
+    @staticmethod
+    def mpm_config(scene) -> MPMConfig:
+        """The scene's :class:`dax_physics.MPMConfig` (a task sets ``mpm_config =
+        staticmethod(its_function)``)."""
+        raise NotImplementedError
+
+    @property
+    def substep_dt(self) -> float:
+        return self.cfg.dt
+
+    def default_physics_params(self):
+        return self._physics_params
+
+    def check_physics_params(self, physics) -> None:
+        check_params(self.cfg, physics)
+
+    def object_points(self, physics):
+        return physics.x

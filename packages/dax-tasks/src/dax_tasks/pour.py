@@ -77,7 +77,6 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
-    check_params,
     checkpointed_scan,
     init_state,
     sampling,
@@ -85,7 +84,7 @@ from dax_physics import (
 )
 from dax_physics.colliders import quat_to_matrix
 
-from .env import Env
+from .env import MPMEnv
 from .spec import TaskSpec
 
 SOURCE, TARGET = 0, 1
@@ -202,18 +201,17 @@ def particle_distance(scene: PourScene, physics):
     return jnp.sqrt(a * a + b * b + _EPS) - math.sqrt(_EPS)
 
 
-class Pour(Env):
+class Pour(MPMEnv):
     """Pour-Water and Pour-Soup (see the module docstring). ``params.physics`` is the
     scene's :class:`dax_physics.MaterialParams`: water (and the chunks) and the bowls'
     friction."""
 
     LAM = 20.0
+    mpm_config = staticmethod(mpm_config)
 
     def __init__(self, spec: TaskSpec):
         super().__init__(spec)
         scene = spec.scene
-        self.cfg = mpm_config(scene)
-        self._physics_params = self.cfg.params
         x, mat, _, vol = contents(scene)
         # upright source bowl: collider origin (bottom centre) one bowl height below the
         # wrist
@@ -222,16 +220,6 @@ class Pour(Env):
         colliders = ColliderState.create(np.stack([base, np.asarray(_target_pos(scene))]))
         self._template = init_state(self.cfg, x + cav.astype(np.float32), mat=mat, vol=vol,
                                     colliders=colliders)
-
-    @property
-    def substep_dt(self) -> float:
-        return self.cfg.dt
-
-    def default_physics_params(self):
-        return self._physics_params
-
-    def check_physics_params(self, physics) -> None:
-        check_params(self.cfg, physics)
 
     def init(self, key, params):
         """The source bowl at a random offset from ``source_wrist``, upright, contents at
@@ -312,9 +300,6 @@ class Pour(Env):
         th_goal = jnp.where((state.t < spec.horizon - back) & pouring, scene.pour_angle, 0.0)
         omega = (th_goal - th) / T
         return jnp.concatenate([v, omega[None]])
-
-    def object_points(self, physics):
-        return physics.x
 
     def end_effector(self, physics):
         """The wrist (source bowl's rim centre) [m] (3,)."""

@@ -53,7 +53,6 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
-    check_params,
     checkpointed_scan,
     init_state,
     sampling,
@@ -61,7 +60,7 @@ from dax_physics import (
     step,
 )
 
-from .env import Env
+from .env import MPMEnv
 from .spec import TaskSpec
 
 TABLE, PUSHER = 0, 1
@@ -179,12 +178,13 @@ def _safe_norm(v):
     return jnp.sqrt(jnp.sum(v * v) + 1e-12)
 
 
-class PushRope(Env):
+class PushRope(MPMEnv):
     """Push-Rope (see the module docstring). ``params.physics`` is the scene's
     :class:`dax_physics.MaterialParams`: the rope's material and the friction of the table
     and the pusher."""
 
     LAM = 20.0
+    mpm_config = staticmethod(mpm_config)
 
     def __init__(self, spec: TaskSpec):
         super().__init__(spec)
@@ -192,23 +192,11 @@ class PushRope(Env):
         if spec.substeps <= scene.lift_substeps:
             raise ValueError(f"push_rope needs substeps > lift_substeps = "
                              f"{scene.lift_substeps}, got {spec.substeps}")
-        self.cfg = mpm_config(scene)
-        self._physics_params = self.cfg.params
         self._rest, vol = rest_particles(scene)
         colliders = ColliderState.create([[0.0, 0.0, scene.table_z], _park(scene)])
         # the canonical straight rope: validated once, fixes dtypes and shapes
         self._template = init_state(self.cfg, straight(scene, self._rest), vol=vol,
                                     colliders=colliders)
-
-    @property
-    def substep_dt(self) -> float:
-        return self.cfg.dt
-
-    def default_physics_params(self):
-        return self._physics_params
-
-    def check_physics_params(self, physics) -> None:
-        check_params(self.cfg, physics)
 
     def init(self, key, params):
         """A random rope shape (see the module docstring) at rest, pusher parked above."""
@@ -306,9 +294,6 @@ class PushRope(Env):
         back = move / _safe_norm(move) * (scene.pusher_radius + scene.rope_radius)
         z = jnp.full((1,), scene.table_z + 0.002, jnp.float32)
         return jnp.concatenate([p - back, z, p + move - back, z])
-
-    def object_points(self, physics):
-        return physics.x
 
     def end_effector(self, physics):
         """The pusher tip [m] (3,)."""

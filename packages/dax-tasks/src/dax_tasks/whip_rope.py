@@ -70,14 +70,13 @@ from dax_physics import (
     ColliderState,
     Material,
     MPMConfig,
-    check_params,
     checkpointed_scan,
     init_state,
     sampling,
     step,
 )
 
-from .env import Env
+from .env import MPMEnv
 from .spec import TaskSpec
 
 #: The rope's default material (``params.physics`` material 0).
@@ -207,30 +206,19 @@ def workspace(scene: WhipRopeScene):
 TRACK_GAIN = 0.5
 
 
-class WhipRope(Env):
+class WhipRope(MPMEnv):
     """Whip-Rope (see the module docstring). ``params.physics`` is the scene's
     :class:`dax_physics.MaterialParams`: the rope's material and the table's friction."""
 
     LAM = 7.0
+    mpm_config = staticmethod(mpm_config)
 
     def __init__(self, spec: TaskSpec):
         super().__init__(spec)
         scene = spec.scene
-        self.cfg = mpm_config(scene)
-        self._physics_params = self.cfg.params
         self._rest, _ = rest_particles(scene)
         self._held = held_mask(scene)
         self._template = _template(scene, self.cfg)  # checked once
-
-    @property
-    def substep_dt(self) -> float:
-        return self.cfg.dt
-
-    def default_physics_params(self):
-        return self._physics_params
-
-    def check_physics_params(self, physics) -> None:
-        check_params(self.cfg, physics)
 
     def init(self, key, params):
         """A random rope shape on the table (see the module docstring), at rest, its first
@@ -333,9 +321,6 @@ class WhipRope(Env):
         t = jnp.clip(state.t, 0, self.horizon - 1)
         err = path[t] - self.gripper(state.physics)
         return vel[t] + TRACK_GAIN * err / self.dt
-
-    def object_points(self, physics):
-        return physics.x
 
     def end_effector(self, physics):
         """The gripper position [m] (3,) (centroid of the held particles)."""
