@@ -123,6 +123,15 @@ def test_corrupted_chunk_is_detected_by_verify(cloth, tmp_path):
         f.verify()
 
 
+def test_params_of_an_mpm_task_are_strict_json():
+    from dax_data.record import make_task
+
+    meta = ff.params_to_json(make_task("push_rope").default_params)
+    text = json.dumps(meta, allow_nan=False)  # raises on a bare Infinity / NaN
+    assert json.loads(text)["physics"]["yield_stress"] == ["inf"]
+    assert json.loads(text)["physics"]["friction"] == [0.5, pytest.approx(0.3)]
+
+
 def test_nothing_is_pickled(cloth):
     with h5py.File(cloth[0], "r") as f:
         def check(name, obj):

@@ -75,12 +75,14 @@ def test_spec_round_trips_through_json_without_module_paths():
         spec = dax_tasks.get_spec(name)
         data = _json.loads(_json.dumps(spec.to_json()))
         assert "dax_tasks" not in _json.dumps(data), f"{name}: a module path in {data}"
-        back = dax_tasks.TaskSpec.from_json(data)
+        back = dax_tasks.spec_from_json(data)
         assert back == spec and back.fingerprint() == spec.fingerprint(), name
     data = _spec().to_json()
+    with pytest.raises(ValueError, match="pass its class"):
+        dax_tasks.TaskSpec.from_json(data)
     data["scene"]["dx_typo"] = 1.0
     with pytest.raises(ValueError, match="dx_typo"):
-        dax_tasks.TaskSpec.from_json(data)
+        dax_tasks.spec_from_json(data)
 
 
 def test_make_uses_an_explicit_goal_path(cache, tmp_path, goal):

@@ -143,16 +143,28 @@ def _jsonable(value):
     return repr(value)
 
 
+def _json_number(x):
+    """A float as JSON allows it: non-finite values (a non-plastic material's yield stress
+    is inf) become the strings ``"inf"``, ``"-inf"`` and ``"nan"``."""
+    x = float(x)
+    return x if np.isfinite(x) else str(x)
+
+
 def params_to_json(params) -> dict:
     """The numbers of a :class:`dax_tasks.EnvParams` but the goal (stored as ``/goal``):
-    ``lam``, ``aux_weight`` and the physics numbers by field name, as JSON lists."""
+    ``lam``, ``aux_weight`` and the physics numbers by field name, as (nested) JSON lists
+    of numbers (see :func:`_json_number`)."""
     physics = params.physics
     fields = ({f.name: getattr(physics, f.name) for f in dataclasses.fields(physics)}
               if dataclasses.is_dataclass(physics) else {"value": physics})
-    return {"lam": float(params.lam), "aux_weight": float(params.aux_weight),
+
+    def numbers(a):
+        a = np.asarray(a, np.float64)
+        return _json_number(a) if a.ndim == 0 else [numbers(v) for v in a]
+
+    return {"lam": _json_number(params.lam), "aux_weight": _json_number(params.aux_weight),
             "physics_type": type(physics).__name__,
-            "physics": {k: _jsonable(np.asarray(v)) for k, v in fields.items()
-                        if v is not None}}
+            "physics": {k: numbers(v) for k, v in fields.items() if v is not None}}
 
 
 def header(env, generator: dict) -> dict:
@@ -194,7 +206,7 @@ def spec_from_meta(meta: dict):
         names = {f.name for f in dc.fields(scene_type)}
         data["scene"] = {k: v for k, v in (data.get("scene") or {}).items() if k in names}
         return dax_tasks.TaskSpec.from_json(data, scene_type)
-    return dax_tasks.TaskSpec.from_json(data)
+    return dax_tasks.spec_from_json(data)
 
 
 def check_extendable(path, meta: dict) -> None:
@@ -238,7 +250,7 @@ def create(path: str | os.PathLike, attrs: dict, goal, goal_provenance: dict) ->
     with (atomic_path(path, copy_existing=False) as tmp,
           h5py.File(tmp, "w", libver=LIBVER) as f):
         for key, value in attrs.items():
-            f.attrs[key] = json.dumps(value) if key in JSON_ATTRS else value
+            f.attrs[key] = json.dumps(value, allow_nan=False) if key in JSON_ATTRS else value
         ds = f.create_dataset("goal", data=np.asarray(goal, np.float32))
         ds.attrs["provenance"] = json.dumps(_jsonable(goal_provenance))
         ds.attrs["units"] = "m"

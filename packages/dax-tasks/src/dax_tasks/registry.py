@@ -67,6 +67,13 @@ def get_spec(name: str) -> TaskSpec:
     return _entry(name)[1]
 
 
+def spec_from_json(data: dict) -> TaskSpec:
+    """:meth:`TaskSpec.from_json` with the scene class of the registered task named in
+    ``data``."""
+    scene_type = type(get_spec(data["name"]).scene) if data.get("scene") is not None else None
+    return TaskSpec.from_json(data, scene_type)
+
+
 def env_class(name: str) -> type[Env]:
     """The :class:`Env` subclass that implements task ``name``."""
     return _entry(name)[0]

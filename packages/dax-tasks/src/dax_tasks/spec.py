@@ -100,17 +100,18 @@ class TaskSpec:
 
     @classmethod
     def from_json(cls, data: dict, scene_type: type | None = None) -> TaskSpec:
-        """The spec :meth:`to_json` wrote. The scene class is ``scene_type`` if given, else
-        that of the registered task of the same name (``ValueError`` if the stored
-        ``scene_type`` names another class, or a field is unknown)."""
+        """The spec :meth:`to_json` wrote, its scene built as a ``scene_type``
+        (:func:`dax_tasks.spec_from_json` finds the class of a registered task).
+        ``ValueError`` if the stored ``scene_type`` names another class, a scene comes
+        without a class, or a field is unknown."""
         data = dict(data)
         stored_type = data.pop("scene_type", None)
         scene = data.pop("scene", None)
         if scene is not None:
             if scene_type is None:
-                from .registry import get_spec
-
-                scene_type = type(get_spec(data["name"]).scene)
+                raise ValueError(f"spec of task {data.get('name')!r} has a {stored_type} "
+                                 f"scene: pass its class (dax_tasks.spec_from_json finds "
+                                 f"the class of a registered task)")
             if stored_type is not None and stored_type != scene_type.__name__:
                 raise ValueError(f"spec of task {data.get('name')!r} has a {stored_type} "
                                  f"scene, not a {scene_type.__name__}")

@@ -6,7 +6,8 @@ stdout (``--json``); progress on stderr. Speed is measured here, never asserted 
     python -m dax_tasks.tools.bench --json                         # all tasks, batch 1 and 8
     python -m dax_tasks.tools.bench --json --tasks fold_cloth1 --batch 1 --reps 5
 
-Times are medians over ``--reps`` calls after the compiled function's first call; compile
+Times are medians over at least ``--reps`` calls and ``--min-time`` seconds (at most 50
+calls) after the compiled function's first call; compile
 times come from lowering and compiling ahead of time (set ``JAX_COMPILATION_CACHE_DIR``
 unset to see cold compiles). ``per_env_step_s`` = step time / batch size. The actions
 timed are the task's scripted expert's (so the gripper touches the object), else the
@@ -47,7 +48,7 @@ def resolution(env) -> dict:
     return out
 
 
-def bench_batch(env, batch: int | None, reps: int) -> dict:
+def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0) -> dict:
     """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
     argument of every timed function (data, as a learner passes them)."""
     if batch is not None:
@@ -55,7 +56,7 @@ def bench_batch(env, batch: int | None, reps: int) -> dict:
     params = env.default_params
     key = jax.random.PRNGKey(0)
     reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
-    t_reset, _ = median_time(lambda: reset(key, params), reps)
+    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time)
     _, state = reset(key, params)
     if env.has_expert:
         action = jax.jit(env.expert_action)(state, params)
@@ -64,14 +65,14 @@ def bench_batch(env, batch: int | None, reps: int) -> dict:
         shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
         action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
-    t_step, _ = median_time(lambda: step(state, action, params), reps)
+    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time)
 
     def total_reward(a, s, p):
         return jnp.sum(env.step(s, a, p)[2])
 
     grad = jax.jit(jax.value_and_grad(total_reward))
     grad_c, c_grad = timed_compile(grad, action, state, params)
-    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps)
+    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time)
     g = np.asarray(grad_c(action, state, params)[1])
     finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
     b = 1 if batch is None else batch
@@ -81,12 +82,13 @@ def bench_batch(env, batch: int | None, reps: int) -> dict:
             "grad_norm": float(np.linalg.norm(g)) if finite else None}
 
 
-def bench_task(name: str, batches, reps: int, overrides: dict | None = None) -> dict:
+def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
+               min_time: float = 0.0) -> dict:
     env = make(name, **(overrides or {}))
     record = {"bench": "task", "task": name, **resolution(env), "batches": []}
     for b in batches:
         print(f"[dax_tasks.tools.bench] {name} batch {b}", file=sys.stderr, flush=True)
-        record["batches"].append(bench_batch(env, None if b == 1 else b, reps))
+        record["batches"].append(bench_batch(env, None if b == 1 else b, reps, min_time))
     record["peak_rss_mb"] = peak_rss_mb()
     record["device"] = str(jax.devices()[0])
     return record
@@ -98,7 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tasks", default="all",
                    help="comma-separated task names or 'all' (the implemented ones)")
     p.add_argument("--batch", default="1,8", help="comma-separated batch sizes")
-    p.add_argument("--reps", type=int, default=3, help="timed calls per measurement")
+    p.add_argument("--reps", type=int, default=3, help="timed calls per measurement (at least)")
+    p.add_argument("--min-time", type=float, default=1.0,
+                   help="time each measurement for at least this many seconds (at most 50 "
+                        "calls); run-to-run noise on 2 shared cores is about 10 %%")
     p.add_argument("--json", action="store_true", help="one JSON line per task")
     return p
 
@@ -126,7 +131,7 @@ def main(argv=None, overrides: dict | None = None) -> list:
         raise SystemExit(2)
     records = []
     for name in names:
-        rec = bench_task(name, batches, args.reps, overrides)
+        rec = bench_task(name, batches, args.reps, overrides, args.min_time)
         emit(rec, args.json)
         records.append(rec)
     return records
