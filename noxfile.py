@@ -6,7 +6,8 @@ default; `nox -s physics-demo` the physics demo; `nox -l` lists them all.
 Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
 
 Each package session installs only that package and the siblings it declares, so a
-package's tests pass with nothing more than its own dependencies (DESIGN.md section 1).
+package's tests pass with nothing more than its own dependencies (docs/ARCHITECTURE.md,
+section 1).
 The sibling packages are not on any index: they are always installed from packages/.
 """
 

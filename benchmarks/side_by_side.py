@@ -113,7 +113,10 @@ def repo_root() -> Path:
 
 
 def resolve_peers_dir(arg: str, root: Path) -> Path | None:
-    """Find the peers' directory: absolute as given; relative to the repo root, then cwd."""
+    """Find the peers' directory: absolute as given; relative to the repo root, then cwd
+    (None when not given or not found)."""
+    if not arg:
+        return None
     p = Path(arg).expanduser()
     candidates = [p] if p.is_absolute() else [root / p, Path.cwd() / p]
     for c in candidates:
@@ -315,15 +318,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     ap.add_argument(
         "--peers-python",
-        default="/root/peers-venv/bin/python",
-        help="interpreter with numpy, taichi, warp-lang (default: %(default)s)",
+        default=os.environ.get("DAX_PEERS_PYTHON", "python3"),
+        help="interpreter with numpy, taichi, warp-lang (default: $DAX_PEERS_PYTHON or "
+        "python3)",
     )
     ap.add_argument(
         "--peers-dir",
-        default=os.environ.get("DAX_PEERS_DIR", "../shared/bench/peers"),
-        help="directory of the peer scripts; a relative path is looked up from "
-        "the repo root, then from the cwd (default: $DAX_PEERS_DIR or "
-        "../shared/bench/peers)",
+        default=os.environ.get("DAX_PEERS_DIR", ""),
+        help="directory of the Taichi and Warp reference scripts (mpm3d_<engine>.py, "
+        "cloth_<engine>.py; they are not part of this repository); a relative path is "
+        "looked up from the repo root, then from the cwd (default: $DAX_PEERS_DIR)",
     )
     ap.add_argument(
         "--dax-python",
@@ -398,7 +402,8 @@ def main(argv: list[str] | None = None) -> int:
             prefix, cwd, env = "{", root, dax_env
         else:
             if peers_dir is None:
-                slot["errors"].append(f"{phase}: peer scripts not found at {args.peers_dir!r}")
+                slot["errors"].append(f"{phase}: peer scripts not found at {args.peers_dir!r} "
+                                      f"(set --peers-dir or DAX_PEERS_DIR)")
                 return
             cmd = peer_cmd(args.peers_python, peers_dir, engine, scene, phase)
             prefix, cwd, env = "RESULT ", peers_out, peer_env

@@ -9,7 +9,7 @@ import pytest
 from dax_physics import cloth as C
 
 # Mean height after 1000 substeps of the standard cloth-drop scene, from the independent
-# Taichi and Warp implementations in shared/bench/peers (they agree to 5e-8).
+# Taichi and Warp reference implementations (they agree to 5e-8).
 PEERS_MEAN_HEIGHT = 0.008108
 
 

@@ -181,7 +181,7 @@ def grid_rollout(cfg: GridClothConfig, cloth: GridCloth, state: GridState, n_ste
 
 
 def cloth_drop_scene(n: int = 64, dt: float = 1e-4, dtype=jnp.float32):
-    """The peers' standard cloth-drop scene (``bench/peers/common.py: ClothParams``) with
+    """The standard cloth-drop scene of the Taichi and Warp reference implementations with
     the peers' y-up mapped to z-up: returns ``(cfg, cloth, state)``.
 
     A 1 m x 1 m sheet of n x n vertices and 1 kg, k_struct = k_shear = 1000 N/m,

@@ -33,7 +33,7 @@ from .timing import emit, median_time, peak_rss_mb
 # --------------------------------------------------------------------------- block drop
 
 def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32):
-    """The peers' MPM block-drop scene (shared/bench/peers, common.py: MPMParams), z up.
+    """The MPM block-drop scene of the Taichi and Warp reference implementations, z up.
 
     Domain [0, 1]^3 on grid^3 cells, N uniformly random particles from
     ``numpy.random.default_rng(0).random((N, 3), float32)`` in the cube of side 0.4 at
