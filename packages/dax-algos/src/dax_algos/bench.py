@@ -31,13 +31,14 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 import dax_tasks
 from dax_tasks.io import atomic_write
 
-from . import registry, report
+from . import learning, registry, report, trained
 
 COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
            "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
@@ -224,13 +225,22 @@ def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar):
         runnable = method.build(env, config)
         key0 = jax.random.PRNGKey(0)
         t0 = time.perf_counter()
-        compiled = jax.jit(runnable.episode).lower(key0, params).compile()
+        if runnable.learns:  # seeds trained together under vmap (the PureJaxRL pattern)
+            keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds))
+            compiled = jax.jit(jax.vmap(runnable.episode, in_axes=(0, None))).lower(
+                keys, params).compile()
+        else:
+            compiled = jax.jit(runnable.episode).lower(key0, params).compile()
         compile_s = time.perf_counter() - t0
     except Exception as err:  # noqa: BLE001
         status = "skipped" if "has no scripted expert" in str(err) else "failed"
         for s in seeds:
             append_row(csv_path, _row(t, m, s, budget, status=status, error=_error_text(err)))
             bar.update()
+        return
+    if runnable.learns:
+        _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
+                     csv_path, bar)
         return
     for s in seeds:
         try:
@@ -246,6 +256,45 @@ def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar):
         bar.update()
 
 
+def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
+                 csv_path, bar):
+    """Train every seed in one vmapped call, then per seed: its learning curve (appended
+    to ``learning_<task>.csv`` before its results row, so a resumed run never lacks one),
+    its policy file (``policies/<task>/<method>/seed<k>.msgpack``) and its results row.
+    ``wall_s`` of a seed is the vmapped call's time divided by the number of seeds; the
+    curve's ``wall_s`` prorates it over the updates (all updates have the same shape)."""
+    out_dir = csv_path.parent
+    try:
+        t0 = time.perf_counter()
+        out = jax.device_get(jax.block_until_ready(compiled(keys, env.default_params)))
+        wall = (time.perf_counter() - t0) / len(seeds)
+    except Exception as err:  # noqa: BLE001
+        for s in seeds:
+            append_row(csv_path, _row(t, m, s, budget, status="failed", compile_s=compile_s,
+                                      error=_error_text(err)))
+            bar.update()
+        return
+    for i, s in enumerate(seeds):
+        one = jax.tree_util.tree_map(lambda x, i=i: x[i], out)
+        try:
+            metrics = one.metrics
+            n = len(metrics.env_steps)
+            curve = [dict(task=t, method=m, seed=s, budget=budget, update=u,
+                          env_steps=int(metrics.env_steps[u]), wall_s=wall * (u + 1) / n,
+                          score=float(metrics.score[u])) for u in range(n)]
+            learning.append_curve(learning.learning_path(out_dir, t), curve)
+            values = evaluate(one.episode, runnable)
+            if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(one.policy)):
+                trained.save_trained(out_dir / "policies" / t / m / f"seed{s}.msgpack", m,
+                                     env, config, one.policy, seed=int(s), budget=budget)
+            row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s, **values)
+        except Exception as err:  # noqa: BLE001
+            row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
+                       error=_error_text(err))
+        append_row(csv_path, row)
+        bar.update()
+
+
 def write_reports(rows, out: Path, budget: str) -> None:
     """Rewrite ``results.md`` and the charts from the rows of ``budget``."""
     rows = [r for r in rows if r["budget"] == budget]
@@ -253,6 +302,11 @@ def write_reports(rows, out: Path, budget: str) -> None:
                            title=f"DaX benchmark ({budget} budget)")
     atomic_write(out / "results.md", text)
     report.charts(rows, out, registry.names())
+    done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows}
+    for task in dict.fromkeys(r["task"] for r in rows):
+        path = learning.learning_path(out, task)
+        if path.exists():
+            learning.charts(learning.read_curves(path, keep=done), out, registry.names())
 
 
 # ----------------------------------------------------------------------------- CLI

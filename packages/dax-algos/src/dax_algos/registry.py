@@ -20,10 +20,13 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
-from . import cem_mpc, common, diff_cem_mpc, diff_mpc, reference
+from . import apg, cem_mpc, common, diff_cem_mpc, diff_mpc, ppo, reference, rl, shac
+from .apg import APGConfig
 from .cem_mpc import CEMConfig
 from .diff_cem_mpc import DiffCEMConfig
 from .diff_mpc import DiffMPCConfig
+from .ppo import PPOConfig
+from .shac import SHACConfig
 
 BUDGETS = ("quick", "full")
 #: Tasks simulated with MLS-MPM (70-100 env steps of 10-25 ms, or 6 pushes of 0.13 s, on 2
@@ -41,6 +44,11 @@ class Runnable:
     backprop_steps: int
     uses_gradients: bool
     nan_grads_zeroed: bool = False
+    #: a learning method: ``episode`` returns :class:`dax_algos.rl.LearnOutput` (the
+    #: evaluation, the learning curve, the trained policy) and seeds run under ``vmap``
+    learns: bool = False
+    #: training environment steps of one run (the learning curve's end), for learners
+    train_env_steps: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,14 +64,18 @@ class Method:
     build: Callable[[Any, Any], Runnable]
     budgets: Mapping[str, Mapping[str, Any]]
     uses_gradients: bool = False
+    #: for a learning method, its module (``make_train(env, config)``, ``make_act(env,
+    #: config)``)
+    learner: Any = None
 
     def config(self, budget: str = "full", task: str | None = None, **overrides):
         """The config for ``budget`` on ``task``, with ``overrides`` (nested configs take a
         dict of their own fields)."""
         if budget not in BUDGETS:
             raise ValueError(f"unknown budget {budget!r}; valid: {', '.join(BUDGETS)}")
-        key = "quick_heavy" if budget == "quick" and task in HEAVY_TASKS else budget
-        kwargs = dict(self.budgets.get(key, self.budgets.get(budget, {})))
+        heavy = f"{budget}_heavy"
+        key = heavy if task in HEAVY_TASKS and heavy in self.budgets else budget
+        kwargs = dict(self.budgets.get(key, {}))
         kwargs.update(overrides)
         return _build_config(self.config_cls, kwargs)
 
@@ -95,9 +107,56 @@ def planner_method(name, kind, config_cls, make_planner, budgets, uses_gradients
                   uses_gradients)
 
 
+def learner_method(name, kind, config_cls, module, budgets, uses_gradients):
+    """A :class:`Method` from a learning module with ``make_train(env, config) ->
+    train(key, params)`` and ``make_act(env, config)`` (see :mod:`dax_algos.rl`). One run
+    trains from the seed's key and evaluates ``config.n_eval`` rollouts; the environment
+    steps counted are training plus evaluation, the backpropagated ones (APG, SHAC) every
+    training step. Non-finite gradients are skipped by the method and counted
+    (``nonfinite_grads``), not a failure of the run."""
+
+    def build(env, config):
+        episode = rl.learner_episode(module.make_train, module.make_act(env, config), env,
+                                     config, config.n_eval)
+        train_steps = _train_env_steps(env, config)
+        return Runnable(episode, train_steps + config.n_eval * env.horizon,
+                        train_steps if uses_gradients else 0, uses_gradients,
+                        nan_grads_zeroed=True, learns=True, train_env_steps=train_steps)
+
+    return Method(name, kind, config_cls, build, MappingProxyType(dict(budgets)),
+                  uses_gradients, learner=module)
+
+
+def _train_env_steps(env, config) -> int:
+    if hasattr(config, "steps_per_update"):
+        return config.steps_per_update * config.updates
+    return config.num_envs * config.window_for(env) * config.updates_for(env)
+
+
 _CEM_QUICK = dict(population=16, elites=4, iterations=2, horizon=1)
 _CEM_QUICK_HEAVY = dict(population=6, elites=2, iterations=1, horizon=1)
 _CEM_FULL = dict(population=64, elites=8, iterations=5, horizon=3)
+
+#: Training budgets of the RL methods in environment steps (with their batch shapes). The
+#: quick ones are sized for the demo grid on 2 CPU cores; see README.md for the full ones.
+RL_BUDGETS = {
+    "ppo": {"quick": dict(total_env_steps=192, num_envs=16, unroll_length=3, n_eval=4),
+            "quick_heavy": dict(total_env_steps=48, num_envs=8, unroll_length=3, n_eval=2,
+                                minibatches=2),
+            "full": dict(total_env_steps=2304, num_envs=64, unroll_length=3),
+            "full_heavy": dict(total_env_steps=960, num_envs=32, unroll_length=3)},
+    "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
+            "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
+                                learning_rate=1e-3, n_eval=2),
+            "full": dict(total_env_steps=480, num_envs=4, learning_rate=1e-3),
+            "full_heavy": dict(total_env_steps=280, num_envs=4, window=10,
+                               learning_rate=1e-3)},
+    "shac": {"quick": dict(total_env_steps=48, num_envs=4, critic_minibatches=2, n_eval=4),
+             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
+                                 critic_minibatches=2, n_eval=2),
+             "full": dict(total_env_steps=480, num_envs=8),
+             "full_heavy": dict(total_env_steps=320, num_envs=4, window=10)},
+}
 
 _METHODS: dict[str, Method] = {}
 
@@ -139,5 +198,8 @@ for _m in (
         "quick_heavy": dict(cem=_CEM_QUICK_HEAVY, diff=dict(steps=1, learning_rate=0.05)),
         "full": dict(cem=_CEM_FULL, diff=dict(steps=10, learning_rate=0.02))},
         uses_gradients=True),
+    learner_method("ppo", "rl", PPOConfig, ppo, RL_BUDGETS["ppo"], uses_gradients=False),
+    learner_method("apg", "rl", APGConfig, apg, RL_BUDGETS["apg"], uses_gradients=True),
+    learner_method("shac", "rl", SHACConfig, shac, RL_BUDGETS["shac"], uses_gradients=True),
 ):
     register(_m)

@@ -1,0 +1,149 @@
+"""Learning curves of the learning methods: ``learning_<task>.csv`` and its chart.
+
+One row per training update of a run: ``task, method, seed, budget, update, env_steps,
+wall_s, score`` (``env_steps`` and ``wall_s`` cumulative over training; ``score`` the mean
+final-step r_gt of the training episodes that ended in the update, empty/NaN when none
+did). All rows of one run are appended in a single flushed, fsynced write, before the
+run's row in results.csv. Reading drops an incomplete last line (a killed writer),
+keeps the last copy of a repeated (task, method, seed, budget, update) (a run re-done
+after an interruption) and, given ``keep``, only runs that results.csv has.
+``learning_<task>.png``: score against environment steps and against wall time, each
+method's mean ± SE band over seeds.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dax_tasks.io import atomic_write
+
+COLUMNS = ("task", "method", "seed", "budget", "update", "env_steps", "wall_s", "score")
+
+
+def learning_path(out_dir, task) -> Path:
+    return Path(out_dir) / f"learning_{task}.csv"
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else "nan"
+    return v
+
+
+def append_curve(path, rows: list[dict]) -> None:
+    """Append one run's rows in a single write (header first if the file is new)."""
+    path = Path(path)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
+    if not path.exists() or path.stat().st_size == 0:
+        writer.writeheader()
+    for r in rows:
+        writer.writerow({k: _fmt(r[k]) for k in COLUMNS})
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(buf.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_curves(path, keep: set | None = None) -> list[dict]:
+    path = Path(path)
+    if not path.exists():
+        return []
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1
+        with open(path, "r+b") as f:
+            f.truncate(cut)
+        data = data[:cut]
+    reader = csv.DictReader(io.StringIO(data.decode()))
+    if reader.fieldnames is not None and tuple(reader.fieldnames) != COLUMNS:
+        raise ValueError(f"{path} has columns {reader.fieldnames}, expected {list(COLUMNS)}")
+    rows = {}
+    for r in reader:
+        row = dict(task=r["task"], method=r["method"], seed=int(r["seed"]),
+                   budget=r["budget"], update=int(r["update"]),
+                   env_steps=float(r["env_steps"]), wall_s=float(r["wall_s"]),
+                   score=float(r["score"]) if r["score"] not in ("", None) else math.nan)
+        run = (row["task"], row["method"], row["seed"], row["budget"])
+        if keep is not None and run not in keep:
+            continue
+        rows[(*run, row["update"])] = row
+    return list(rows.values())
+
+
+def curve_bands(rows, x: str, points: int = 50) -> dict:
+    """{method: (grid, mean, SE, n_seeds)} of the score interpolated on a common x grid."""
+    out = {}
+    by_method: dict = {}
+    for r in rows:
+        by_method.setdefault(r["method"], {}).setdefault(r["seed"], []).append(r)
+    for method, seeds in by_method.items():
+        curves = []
+        for rs in seeds.values():
+            rs = sorted(rs, key=lambda r: r["update"])
+            xs = np.asarray([r[x] for r in rs], float)
+            ys = np.asarray([r["score"] for r in rs], float)
+            ok = np.isfinite(ys)
+            if ok.sum():
+                curves.append((xs[ok], ys[ok]))
+        if not curves:
+            continue
+        lo = max(c[0][0] for c in curves)
+        hi = min(c[0][-1] for c in curves)
+        if hi < lo:
+            lo, hi = min(c[0][0] for c in curves), max(c[0][-1] for c in curves)
+        grid = np.linspace(lo, hi, points)
+        ys = np.full((len(curves), points), np.nan)
+        for i, (cx, cy) in enumerate(curves):
+            inside = (grid >= cx[0]) & (grid <= cx[-1])
+            ys[i, inside] = np.interp(grid[inside], cx, cy)
+        n = np.sum(np.isfinite(ys), 0)
+        mean = np.nanmean(ys, 0)
+        sd = np.where(n > 1, np.nanstd(ys, 0, ddof=1) if len(curves) > 1 else 0.0, 0.0)
+        se = np.where(n > 1, sd / np.sqrt(np.maximum(n, 1)), 0.0)
+        out[method] = (grid, mean, se, len(curves))
+    return out
+
+
+def charts(rows, out_dir, method_order=()) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for task in dict.fromkeys(r["task"] for r in rows):
+        trows = [r for r in rows if r["task"] == task]
+        seen = list(dict.fromkeys(r["method"] for r in trows))
+        methods = [m for m in method_order if m in seen] + [m for m in seen
+                                                            if m not in method_order]
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+        n_seeds = 0
+        for ax, x, label in zip(axes, ("env_steps", "wall_s"),
+                                ("training environment steps", "training wall time [s]"),
+                                strict=True):
+            bands = curve_bands(trows, x)
+            for i, m in enumerate(methods):
+                if m not in bands:
+                    continue
+                grid, mean, se, n = bands[m]
+                n_seeds = max(n_seeds, n)
+                ax.plot(grid, mean, color=f"C{i % 10}", label=m)
+                ax.fill_between(grid, mean - se, mean + se, color=f"C{i % 10}", alpha=0.25)
+            ax.set_xlabel(label)
+            ax.grid(True, alpha=0.3)
+        axes[0].set_ylabel("final-step r_gt (training episodes)")
+        axes[0].legend(fontsize=8)
+        fig.suptitle(f"{task}: learning curves (mean ± SE over {n_seeds} seeds)")
+        fig.tight_layout()
+        path = Path(out_dir) / f"learning_{task}.png"
+        atomic_write(path, lambda f, fig=fig: fig.savefig(f, format="png", dpi=100))
+        plt.close(fig)
+        written.append(path)
+    return written

@@ -1,0 +1,1 @@
+"""Command-line tools of dax-algos that are not the runner (benchmarks, sweeps)."""

@@ -1,0 +1,87 @@
+"""Trained policies on disk: what a learning run keeps so that its policy can be
+re-evaluated, rendered or fine-tuned without retraining.
+
+A policy file (:mod:`dax_algos.policy_io`: one checksummed msgpack file, written
+atomically, never pickle) holds the policy network's parameters and its observation
+normaliser, and beside them the method, its full config, the task and the task spec's
+fingerprint. :func:`load_trained` refuses a file made for another task, another spec
+(resolution, horizon, ...) or, when a config is given, another config, naming what
+differs.
+
+    env = dax_tasks.make("fold_cloth1")
+    act, policy = load_trained("results/policies/fold_cloth1/ppo/seed0.msgpack", env, "ppo")
+    z = act(policy, dax_algos.rl.features(obs, state.t, env.horizon))   # normalised action
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import __version__, nets, policy_io, registry, rl
+
+
+def _config_json(config) -> dict:
+    def conv(v):
+        if isinstance(v, tuple):
+            return [conv(x) for x in v]
+        return v
+
+    return {f.name: conv(getattr(config, f.name)) for f in dataclasses.fields(config)}
+
+
+def _config_from_json(cls, data: dict):
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()
+              if k in fields}
+    return cls(**kwargs)
+
+
+def policy_meta(method: str, env, config) -> dict:
+    return {"method": method, "task": env.spec.name,
+            "task_fingerprint": env.spec.fingerprint(), "config": _config_json(config),
+            "obs_dim": rl.feature_dim(env), "action_dim": env.spec.action_dim,
+            "dax_algos_version": __version__}
+
+
+def save_trained(path, method: str, env, config, policy: rl.Policy, **extra_meta) -> Path:
+    """Write ``policy`` (an :class:`rl.Policy` of one seed, NumPy or JAX arrays)."""
+    tree = {"policy": nets.to_tree(policy.params),
+            "obs_norm": {"mean": np.asarray(policy.obs_norm.mean),
+                         "var": np.asarray(policy.obs_norm.var),
+                         "count": np.asarray(policy.obs_norm.count)}}
+    meta = {**policy_meta(method, env, config), **extra_meta}
+    return policy_io.save_policy(path, tree, meta)
+
+
+def load_trained(path, env, method: str | None = None, config=None):
+    """``(act, policy)`` of a saved policy for ``env``: ``act(policy, feats) -> z`` the
+    deterministic normalised action. Refused (``ValueError`` naming the difference) when
+    the file was made for another task or task spec, another method (if ``method`` is
+    given) or another config (if ``config`` is given)."""
+    meta = policy_io.read_meta(path)
+    method = method or meta.get("method")
+    m = registry.get(method)
+    if m.learner is None:
+        raise ValueError(f"{path}: method {method!r} is not a learning method")
+    expect = {"task": env.spec.name, "task_fingerprint": env.spec.fingerprint(),
+              "method": method}
+    if config is not None:
+        expect["config"] = _config_json(config)
+    tree, meta = policy_io.load_policy(path, expect)
+    config = config or _config_from_json(m.config_cls, meta["config"])
+    network = _policy_network(m, env, config)
+    params = network.from_tree(tree["policy"])
+    on = tree["obs_norm"]
+    norm = rl.ObsNorm(jnp.asarray(on["mean"]), jnp.asarray(on["var"]), jnp.asarray(on["count"]))
+    return m.learner.make_act(env, config), rl.Policy(params, norm)
+
+
+def _policy_network(method, env, config):
+    module = method.learner
+    if hasattr(module, "networks"):
+        return module.networks(env, config)[0]
+    return module.network(env, config)

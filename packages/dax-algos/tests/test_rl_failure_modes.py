@@ -1,0 +1,97 @@
+"""Failure modes of the gradient-based RL methods that the literature reports, pinned:
+
+* a policy whose picks miss the cloth gets an *exactly* zero simulator gradient when the
+  task's contact adjustment is off (with it on, the same action has a gradient);
+* on a long low-level task (Whip-Rope) the gradient of the return grows with the
+  backpropagation horizon, and so does the first action's share of it.
+"""
+
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from algos_helpers import cheap_cloth_overrides
+
+import dax_tasks
+from dax_algos import apg, common, rl
+from dax_tasks.wrappers import training_env
+
+
+def _missing_pick(env):
+    lo, hi = np.asarray(env.spec.action_low), np.asarray(env.spec.action_high)
+    mid = 0.5 * (lo + hi)
+    return jnp.asarray([lo[0] + 0.01, lo[1] + 0.01, *mid[2:]], jnp.float32)  # a far corner
+
+
+@pytest.fixture(scope="module", params=[False, True], ids=["no_adjustment", "adjustment"])
+def cloth(request):
+    return dax_tasks.make("fold_cloth1", cache_goal=False,
+                          **cheap_cloth_overrides(horizon=2, contact_adjustment=request.param))
+
+
+def test_missed_pick_has_exactly_zero_simulator_gradient(cloth):
+    _, state = cloth.reset(jax.random.PRNGKey(0))
+    pts = np.asarray(cloth.object_points(state.physics))
+    action = _missing_pick(cloth)
+    assert action[0] < pts[:, 0].min() - 0.05 and action[1] < pts[:, 1].min() - 0.05
+    grad = np.asarray(jax.jit(jax.grad(
+        lambda a: cloth.step(state, a)[4]["r_gt"]))(action))
+    if cloth.spec.contact_adjustment:
+        assert np.linalg.norm(grad) > 1e-3, grad  # the pick is moved onto the cloth
+    else:
+        assert np.all(grad == 0.0), grad
+
+
+def test_apg_policy_gradient_is_exactly_zero_when_its_picks_miss(cloth):
+    if cloth.spec.contact_adjustment:
+        pytest.skip("the failure needs contact adjustment off")
+    config = apg.APGConfig(num_envs=2, policy_hidden=(16,), aux_weight=0.0)
+    pnet = apg.network(cloth, config)
+    policy = pnet.init(jax.random.PRNGKey(0))
+    # bias the output layer so that the policy's action is the missing pick
+    z = common.to_normalised(cloth, _missing_pick(cloth))
+    last = policy["mean"]["layers"][len(config.policy_hidden)]
+    last["bias"][...] = jnp.arctanh(jnp.clip(z, -0.999, 0.999))
+    venv = training_env(cloth, config.num_envs)
+    rollout = apg.make_rollout(cloth, venv, pnet, config, cloth.horizon)
+    params = rl.training_params(cloth.default_params, config.aux_weight)
+    obs, state = venv.reset(jax.random.PRNGKey(1), params)
+    norm = rl.ObsNorm.create(rl.feature_dim(cloth))
+    grads = jax.jit(jax.grad(lambda p: rollout(p, norm, obs, state, jax.random.PRNGKey(2),
+                                               params)[0]))(policy)
+    leaves = jax.tree_util.tree_leaves(grads)
+    assert all(np.all(np.asarray(g) == 0.0) for g in leaves)
+    # the auxiliary (contact) reward is what gives such a policy a gradient
+    params_aux = rl.training_params(cloth.default_params, 1.0)
+    grads_aux = jax.jit(jax.grad(lambda p: rollout(p, norm, obs, state, jax.random.PRNGKey(2),
+                                                   params_aux)[0]))(policy)
+    assert max(float(jnp.max(jnp.abs(g))) for g in jax.tree_util.tree_leaves(grads_aux)) > 0
+
+
+def test_whip_gradient_grows_with_the_backpropagation_horizon():
+    env = dax_tasks.make("whip_rope", substeps=8, horizon=16, cache_goal=False)
+    _, start = env.reset(jax.random.PRNGKey(0))
+    t = jnp.arange(env.horizon)
+    actions = 0.5 * jnp.stack([jnp.sin(t / 3.0), jnp.cos(t / 4.0), 0.3 * jnp.sin(t / 5.0)],
+                              -1).astype(jnp.float32)
+
+    def rewards(a):
+        def body(s, a):
+            _, s, _, _, info = env.step(s, a)
+            return s, info["r_gt"]
+
+        return jax.lax.scan(body, start, a)[1]
+
+    @jax.jit
+    def window_gradient(a, mask):  # d(sum of the first h rewards)/d(actions), one compile
+        return jax.vjp(rewards, a)[1](mask)[0]
+
+    norms, first = [], []
+    for h in (1, 4, 16):
+        g = np.asarray(window_gradient(actions, (t < h).astype(jnp.float32)))
+        assert np.all(np.isfinite(g))
+        norms.append(np.linalg.norm(g))
+        first.append(np.linalg.norm(g[0]))
+    assert norms[0] < norms[1] < norms[2] and norms[2] > 20 * norms[0], norms
+    assert first[0] < first[1] < first[2] and first[2] > 10 * first[0], first
