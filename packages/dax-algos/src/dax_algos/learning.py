@@ -37,8 +37,11 @@ def _fmt(v):
 
 
 def append_curve(path, rows: list[dict]) -> None:
-    """Append one run's rows in a single write (header first if the file is new)."""
+    """Append one run's rows in a single write (header first if the file is new). An
+    incomplete last line left by a killed writer is cut off first, so the new rows never
+    join it."""
     path = Path(path)
+    _drop_partial_line(path)
     buf = io.StringIO()
     writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
     if not path.exists() or path.stat().st_size == 0:
@@ -51,16 +54,23 @@ def append_curve(path, rows: list[dict]) -> None:
         os.fsync(f.fileno())
 
 
-def read_curves(path, keep: set | None = None) -> list[dict]:
-    path = Path(path)
+def _drop_partial_line(path: Path) -> bytes:
+    """The file's bytes up to its last newline (the file truncated there if needed)."""
     if not path.exists():
-        return []
+        return b""
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
         cut = data.rfind(b"\n") + 1
         with open(path, "r+b") as f:
             f.truncate(cut)
         data = data[:cut]
+    return data
+
+
+def read_curves(path, keep: set | None = None) -> list[dict]:
+    """The rows (typed), without duplicates; only runs in ``keep`` if given."""
+    path = Path(path)
+    data = _drop_partial_line(path)
     reader = csv.DictReader(io.StringIO(data.decode()))
     if reader.fieldnames is not None and tuple(reader.fieldnames) != COLUMNS:
         raise ValueError(f"{path} has columns {reader.fieldnames}, expected {list(COLUMNS)}")
