@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 import dax_tasks
 from dax_tasks.io import atomic_write
 
-from . import learning, registry, report, trained
+from . import csvlog, learning, registry, report, trained
 
 COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
            "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
@@ -88,15 +88,8 @@ def _split(spec) -> list[str]:
 def read_rows(path: Path) -> list[dict]:
     """The rows of ``results.csv`` (an incomplete last line, from an interrupted write, is
     dropped from the file)."""
-    if not path.exists():
-        return []
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        cut = data.rfind(b"\n") + 1
-        with open(path, "r+b") as f:
-            f.truncate(cut)
-        data = data[:cut]
-    rows = list(csv.DictReader(io.StringIO(data.decode())))
+    data = csvlog.read_complete(path)
+    rows = list(csv.DictReader(io.StringIO(data)))
     if rows and set(rows[0]) != set(COLUMNS):
         raise ValueError(f"{path} has columns {list(rows[0])}, expected {list(COLUMNS)}; "
                          f"use another --out directory")
@@ -107,13 +100,10 @@ def append_row(path: Path, row: Mapping) -> None:
     """Append one row with a single write, flushed and fsynced (header first if new)."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
-    if not path.exists() or path.stat().st_size == 0:
+    if csvlog.is_empty(path):
         writer.writeheader()
     writer.writerow({k: _fmt(row.get(k, "")) for k in COLUMNS})
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
+    csvlog.append(path, buf.getvalue())
 
 
 def _fmt(v):

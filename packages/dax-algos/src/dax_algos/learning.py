@@ -16,12 +16,13 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from dax_tasks.io import atomic_write
+
+from . import csvlog
 
 COLUMNS = ("task", "method", "seed", "budget", "update", "env_steps", "wall_s", "score")
 
@@ -40,38 +41,19 @@ def append_curve(path, rows: list[dict]) -> None:
     """Append one run's rows in a single write (header first if the file is new). An
     incomplete last line left by a killed writer is cut off first, so the new rows never
     join it."""
-    path = Path(path)
-    _drop_partial_line(path)
     buf = io.StringIO()
     writer = csv.DictWriter(buf, COLUMNS, lineterminator="\n")
-    if not path.exists() or path.stat().st_size == 0:
+    if csvlog.is_empty(path):
         writer.writeheader()
     for r in rows:
         writer.writerow({k: _fmt(r[k]) for k in COLUMNS})
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-
-
-def _drop_partial_line(path: Path) -> bytes:
-    """The file's bytes up to its last newline (the file truncated there if needed)."""
-    if not path.exists():
-        return b""
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        cut = data.rfind(b"\n") + 1
-        with open(path, "r+b") as f:
-            f.truncate(cut)
-        data = data[:cut]
-    return data
+    csvlog.append(path, buf.getvalue())
 
 
 def read_curves(path, keep: set | None = None) -> list[dict]:
     """The rows (typed), without duplicates; only runs in ``keep`` if given."""
     path = Path(path)
-    data = _drop_partial_line(path)
-    reader = csv.DictReader(io.StringIO(data.decode()))
+    reader = csv.DictReader(io.StringIO(csvlog.read_complete(path)))
     if reader.fieldnames is not None and tuple(reader.fieldnames) != COLUMNS:
         raise ValueError(f"{path} has columns {reader.fieldnames}, expected {list(COLUMNS)}")
     rows = {}
