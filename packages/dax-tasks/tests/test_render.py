@@ -79,3 +79,47 @@ def test_record_episode_and_gif(tmp_path):
         render.save_video(frames, tmp_path / "ep.mp4")
     with pytest.raises(ValueError, match="uint8"):
         render.save_video([np.zeros((4, 4, 3), np.float32)], tmp_path / "bad.gif")
+
+
+def test_textured_picture_shows_each_pixels_highest_point_in_its_colour():
+    window = (0.0, 1.0, 0.0, 1.0, 0.0)
+    pts = jnp.asarray([[0.05, 0.95, 0.01], [0.05, 0.95, 0.02], [0.95, 0.05, 0.0]])
+    colors = np.asarray([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], np.float32)
+    img = np.asarray(render.rgb_image(pts, None, window, res=10, colors=colors))
+    # top-left: the higher (green) point wins, brightened by its height (0.02 of 0.05)
+    assert tuple(img[0, 0]) == (0, round(255 * (0.7 + 0.3 * 0.4)), 0), img[0, 0]
+    assert tuple(img[9, 9]) == (0, 0, round(255 * (0.7 + 0.3 * render.MIN_HEIGHT / 0.05)))
+    assert tuple(img[5, 5]) == render.TABLE_RGB  # no gripper marker without an effector
+    with pytest.raises(ValueError, match=r"colors must be \(N, 3\) for 3 points"):
+        render.rgb_image(pts, None, window, res=10, colors=colors[:2])
+
+
+def test_cloth_and_rope_textures_tell_their_ends_apart(fold):
+    colors = fold.object_colors
+    assert colors.shape == (121, 3) and colors.min() >= 0 and colors.max() <= 1
+    corners = colors[[0, 10, 110, 120]]  # the four corners of the 11 x 11 mesh
+    gaps = np.linalg.norm(corners[:, None] - corners[None], axis=-1)
+    assert np.all(gaps + np.eye(4) > 0.3), f"two corners look alike: {gaps}"
+    ramp = render.ramp_colors(np.linspace(0.0, 0.24, 5))
+    assert np.linalg.norm(ramp[0] - ramp[-1]) > 0.5
+
+
+def test_goal_image_appends_the_goal_picture_and_pixels_map_to_the_table(fold):
+    env = ObservationMode(fold, "rgbd", image_size=32, goal_image=True)
+    obs, _ = jax.jit(env.reset)(jax.random.PRNGKey(0))
+    assert obs.shape == (32, 32, 8) and env.observation_space.shape == (32, 32, 8)
+    goal = np.asarray(env.goal_observation())
+    np.testing.assert_array_equal(np.asarray(obs[..., 4:]), goal)
+    changed = env.goal_observation(fold.default_params.replace(
+        goal=fold.default_params.goal + jnp.asarray([0.05, 0.0, 0.0])))
+    assert not np.array_equal(np.asarray(changed), goal), "the goal picture ignores params"
+    with pytest.raises(ValueError, match="goal_image needs an image mode"):
+        ObservationMode(fold, "state", goal_image=True)
+    camera = env.camera
+    xy = jnp.asarray([[0.1, -0.05], [-0.2, 0.2]])
+    px = camera.to_pixel(xy, 32)
+    np.testing.assert_allclose(np.asarray(camera.to_table(px, 32)), np.asarray(xy), atol=1e-6)
+    # a point lands in the pixel the height map splats it into
+    hm = np.asarray(render.height_map(jnp.asarray([[0.1, -0.05, 0.03]]), camera.window, 32))
+    row, col = np.round(np.asarray(px[0])).astype(int)
+    assert hm[row, col] == pytest.approx(0.03 - camera.window[4])

@@ -82,7 +82,7 @@ import numpy as np
 
 import dax_physics.cloth as dc
 
-from . import _cloth
+from . import _cloth, render
 from ._cloth import DEFAULT_MATERIAL, ClothParams, ClothScene
 from .env import Env
 from .spec import TaskSpec
@@ -197,6 +197,14 @@ class ClothTask(Env):
     def object_faces(self):
         """The cloth mesh's triangles (F, 3) (NumPy)."""
         return np.asarray(self.base_cloth.faces)
+
+    @property
+    def object_colors(self):
+        """The cloth's texture: each vertex coloured by its place on the flat rest mesh
+        (:func:`dax_tasks.render.uv_colors`), so the corners differ in RGB pictures."""
+        rest = _cloth.flat_vertices(self.spec.scene)[:, :2]
+        lo, hi = rest.min(0), rest.max(0)
+        return render.uv_colors((rest - lo) / np.maximum(hi - lo, 1e-9))
 
     def expert(self, state, params):
         """The scripted expert's action (see the module docstring); pure and jittable."""

@@ -110,8 +110,9 @@ class Env:
     object point, flattened, then the end effector), ``distance(physics, goal) -> D`` [m]
     (default: ``spec.distance`` between the object points and the goal),
     ``expert(state, params) -> action`` (a scripted expert with privileged state),
-    ``check_physics_params(physics)`` (eager validation) and ``object_faces`` (a mesh's
-    triangles). ``LAM`` is the default λ [1/m].
+    ``check_physics_params(physics)`` (eager validation), ``object_faces`` (a mesh's
+    triangles) and ``object_colors`` (a colour per point for RGB pictures). ``LAM`` is the
+    default λ [1/m].
 
     An env needs its goal before ``default_params`` exists: :func:`dax_tasks.make` resolves
     it (file, cache, or ``canonical_goal``) and returns ``env.with_goal(points)``.
@@ -157,6 +158,12 @@ class Env:
     def object_faces(self):
         """Triangle faces (F, 3) of the object's surface for rendering and export (a
         cloth's mesh), or ``None`` when the object is particles."""
+        return None
+
+    @property
+    def object_colors(self):
+        """A colour per object point (N, 3) in [0, 1] (NumPy), the object's texture in RGB
+        pictures (:func:`dax_tasks.render.rgb_image`), or ``None``: shaded by height."""
         return None
 
     def observe(self, physics):

@@ -301,6 +301,12 @@ class Pour(MPMEnv):
         omega = (th_goal - th) / T
         return jnp.concatenate([v, omega[None]])
 
+    @property
+    def object_colors(self):
+        """The contents' colours by material: water blue, the soup's chunks beige."""
+        palette = np.asarray([[0.2, 0.45, 0.9], [0.9, 0.75, 0.45]], np.float32)
+        return palette[np.asarray(self._template.mat)]
+
     def end_effector(self, physics):
         """The wrist (source bowl's rim centre) [m] (3,)."""
         return wrist(self.spec.scene, physics.colliders)

@@ -60,6 +60,7 @@ from dax_physics import (
     step,
 )
 
+from . import render
 from .env import MPMEnv
 from .spec import TaskSpec
 
@@ -294,6 +295,12 @@ class PushRope(MPMEnv):
         back = move / _safe_norm(move) * (scene.pusher_radius + scene.rope_radius)
         z = jnp.full((1,), scene.table_z + 0.002, jnp.float32)
         return jnp.concatenate([p - back, z, p + move - back, z])
+
+    @property
+    def object_colors(self):
+        """The rope's texture: a colour ramp along its length
+        (:func:`dax_tasks.render.ramp_colors`), so its two ends differ in RGB pictures."""
+        return render.ramp_colors(self._rest[:, 0])
 
     def end_effector(self, physics):
         """The pusher tip [m] (3,)."""

@@ -10,9 +10,13 @@ the right and y up.
 * :func:`height_map` ``(H, W)`` float32 [m]: the largest height of an object point above the
   view's base height ``z0`` in each pixel (0 where there is none); occupied pixels are at
   least ``1e-4`` m, so an object lying flat on the table still shows.
-* :func:`rgb_image` ``(H, W, 3)`` uint8: a grey table, the object shaded from dark blue
-  (low) to light blue (``shade_height`` above ``z0`` or more) and the end effector as a red
-  square.
+* :func:`rgb_image` ``(H, W, 3)`` uint8: a grey table, the object and the end effector as
+  a red square. The object is shaded from dark blue (low) to light blue (``shade_height``
+  above ``z0`` or more), or, given a colour per point (its *texture*, a task's
+  ``object_colors``: a cloth's colours vary across it so its corners differ, a rope's
+  along it, a liquid's by material), each pixel takes the colour of the highest point
+  over it, brightened with height. A height map cannot tell a cloth's four corners or a
+  rope's two ends apart; the texture can, as a printed cloth does in a camera picture.
 
 A :class:`Camera` fixes the view window and the points' splat radius of one env (host
 side, once); its ``height`` and ``rgb`` are pure and are what the ``height``, ``rgb`` and
@@ -73,11 +77,10 @@ def point_spacing(points) -> float:
     return float(np.median(np.sort(d, axis=1)[:, max(k, 0)])) if len(p) > 1 else 0.0
 
 
-def height_map(points, window, res: int = 64, radius: float = 0.0):
-    """``(res, res)`` float32: the highest object point above ``window[4]`` per pixel [m].
-    Each point covers the pixels within ``radius`` [m] of it (a cloth's vertices or a
-    liquid's particles then cover the surface between them)."""
-    points = jnp.asarray(points, jnp.float32)
+def _splat(points, window, res: int, radius: float):
+    """The pixels each point covers: ``(flat, ok, h)`` with ``flat`` (N, K) flat pixel
+    indices, ``ok`` (N, K) whether the pixel is inside the image, ``h`` (N,) the point's
+    height above ``window[4]`` (at least :data:`MIN_HEIGHT`)."""
     row, col, inside = _pixels(points, window, res)
     h = jnp.maximum(points[:, 2] - window[4], MIN_HEIGHT)
     pix = (window[1] - window[0]) / res
@@ -89,18 +92,60 @@ def height_map(points, window, res: int = 64, radius: float = 0.0):
     c = col[:, None] + dj[None]
     ok = (r >= 0) & (r < res) & (c >= 0) & (c < res) & inside[:, None]
     flat = jnp.clip(r, 0, res - 1) * res + jnp.clip(c, 0, res - 1)
+    return flat, ok, h
+
+
+def _height_flat(flat, ok, h, res: int):
     val = jnp.where(ok, h[:, None], 0.0)
-    return jnp.zeros(res * res, jnp.float32).at[flat.ravel()].max(val.ravel()).reshape(res, res)
+    return jnp.zeros(res * res, jnp.float32).at[flat.ravel()].max(val.ravel())
+
+
+def height_map(points, window, res: int = 64, radius: float = 0.0):
+    """``(res, res)`` float32: the highest object point above ``window[4]`` per pixel [m].
+    Each point covers the pixels within ``radius`` [m] of it (a cloth's vertices or a
+    liquid's particles then cover the surface between them)."""
+    points = jnp.asarray(points, jnp.float32)
+    flat, ok, h = _splat(points, window, res, radius)
+    return _height_flat(flat, ok, h, res).reshape(res, res)
+
+
+def top_points(points, window, res: int = 64, radius: float = 0.0):
+    """``(height, index)``: the height map (:func:`height_map`) and, per pixel, the index of
+    the highest point covering it (the largest index among equally high ones, so the
+    picture does not depend on the order of a scatter), -1 where there is none."""
+    points = jnp.asarray(points, jnp.float32)
+    flat, ok, h = _splat(points, window, res, radius)
+    top = _height_flat(flat, ok, h, res)
+    idx = jnp.broadcast_to(jnp.arange(points.shape[0], dtype=jnp.int32)[:, None], flat.shape)
+    wins = ok & (h[:, None] >= top[flat])
+    index = jnp.full(res * res, -1, jnp.int32).at[flat.ravel()].max(
+        jnp.where(wins, idx, -1).ravel())
+    return top.reshape(res, res), index.reshape(res, res)
 
 
 def rgb_image(points, end_effector, window, res: int = 64, radius: float = 0.0,
-              shade_height: float = 0.05, marker: int | None = None):
-    """``(res, res, 3)`` uint8: table, object shaded by height, end effector in red."""
-    hm = height_map(points, window, res, radius)
-    s = jnp.clip(hm / shade_height, 0.0, 1.0)[..., None]
-    low, high = jnp.asarray(LOW_RGB, jnp.float32), jnp.asarray(HIGH_RGB, jnp.float32)
-    obj = low + s * (high - low)
+              shade_height: float = 0.05, marker: int | None = None, colors=None):
+    """``(res, res, 3)`` uint8: table, object, end effector in red (none if
+    ``end_effector`` is ``None``). Without ``colors`` the
+    object is shaded by height (dark to light blue); with ``colors`` (N, 3) in [0, 1] (a
+    colour per point) each pixel shows the colour of the highest point over it, scaled
+    from 0.7 (on the table) to 1.0 (``shade_height`` up or more)."""
+    if colors is None:
+        hm = height_map(points, window, res, radius)
+        s = jnp.clip(hm / shade_height, 0.0, 1.0)[..., None]
+        low, high = jnp.asarray(LOW_RGB, jnp.float32), jnp.asarray(HIGH_RGB, jnp.float32)
+        obj = low + s * (high - low)
+    else:
+        colors = jnp.asarray(colors, jnp.float32)
+        if colors.shape != (jnp.shape(points)[0], 3):
+            raise ValueError(f"colors must be (N, 3) for {jnp.shape(points)[0]} points, got "
+                             f"{colors.shape}")
+        hm, index = top_points(points, window, res, radius)
+        s = jnp.clip(hm / shade_height, 0.0, 1.0)[..., None]
+        obj = 255.0 * colors[jnp.maximum(index, 0)] * (0.7 + 0.3 * s)
     img = jnp.where(hm[..., None] > 0, obj, jnp.asarray(TABLE_RGB, jnp.float32))
+    if end_effector is None:
+        return jnp.round(img).astype(jnp.uint8)
     ee = jnp.asarray(end_effector, jnp.float32).reshape(1, 3)
     row, col, inside = _pixels(ee, window, res)
     r, c = row[0], col[0]
@@ -109,6 +154,25 @@ def rgb_image(points, end_effector, window, res: int = 64, radius: float = 0.0,
     mark = (jnp.abs(rows - r) <= k) & (jnp.abs(cols - c) <= k) & inside[0]
     img = jnp.where(mark[..., None], jnp.asarray(GRIPPER_RGB, jnp.float32), img)
     return jnp.round(img).astype(jnp.uint8)
+
+
+def ramp_colors(s) -> np.ndarray:
+    """(N, 3) colours in [0, 1] of points at positions ``s`` (N,) along an object (a rope's
+    arc length, any unit): a ramp from orange (the smallest ``s``) to purple (the
+    largest) (NumPy)."""
+    s = np.asarray(s, np.float64)
+    t = ((s - s.min()) / max(float(np.ptp(s)), 1e-12))[:, None]
+    return ((1 - t) * np.asarray([0.95, 0.6, 0.1]) + t * np.asarray([0.45, 0.1, 0.65])
+            ).astype(np.float32)
+
+
+def uv_colors(uv) -> np.ndarray:
+    """(N, 3) colours in [0, 1] of points at texture coordinates ``uv`` (N, 2) in [0, 1]:
+    red grows with u, green with v, blue falls with u, so the four corners of a square are
+    blue, red, cyan and yellow (NumPy)."""
+    uv = np.clip(np.asarray(uv, np.float64), 0.0, 1.0)
+    u, v = uv[:, 0], uv[:, 1]
+    return np.stack([0.15 + 0.7 * u, 0.25 + 0.5 * v, 0.85 - 0.6 * u], 1).astype(np.float32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,16 +200,38 @@ class Camera:
         """``(res, res)`` float32 height map [m] (:func:`height_map`)."""
         return height_map(points, self.window, res, self.radius)
 
-    def rgb(self, points, end_effector, res: int = 64):
-        """``(res, res, 3)`` uint8 picture (:func:`rgb_image`)."""
-        return rgb_image(points, end_effector, self.window, res, self.radius)
+    def to_pixel(self, xy, res: int = 64):
+        """Continuous pixel coordinates ``(row, col)`` (..., 2) of table points ``xy``
+        (..., 2) [m] in a ``res``-pixel picture: pixel ``(i, j)``'s centre is ``(i, j)``,
+        so rounding gives the pixel a point falls in (as :func:`height_map` splats it)."""
+        x0, x1, y0, y1, _ = self.window
+        xy = jnp.asarray(xy, jnp.float32)
+        col = (xy[..., 0] - x0) / (x1 - x0) * res - 0.5
+        row = (y1 - xy[..., 1]) / (y1 - y0) * res - 0.5
+        return jnp.stack([row, col], axis=-1)
+
+    def to_table(self, pixel, res: int = 64):
+        """The table point ``(x, y)`` (..., 2) [m] at continuous pixel coordinates
+        ``(row, col)`` (..., 2); the inverse of :meth:`to_pixel`."""
+        x0, x1, y0, y1, _ = self.window
+        pixel = jnp.asarray(pixel, jnp.float32)
+        x = x0 + (pixel[..., 1] + 0.5) / res * (x1 - x0)
+        y = y1 - (pixel[..., 0] + 0.5) / res * (y1 - y0)
+        return jnp.stack([x, y], axis=-1)
+
+    def rgb(self, points, end_effector, res: int = 64, colors=None):
+        """``(res, res, 3)`` uint8 picture (:func:`rgb_image`; ``colors`` the object's
+        texture, e.g. ``env.object_colors``)."""
+        return rgb_image(points, end_effector, self.window, res, self.radius, colors=colors)
 
 
 def render(env, state, res: int = 256, camera: Camera | None = None) -> np.ndarray:
     """An RGB frame ``(res, res, 3)`` uint8 (NumPy) of ``state`` seen from above; a batch of
     states (leading axis) gives one frame per state."""
     camera = Camera.for_env(env) if camera is None else camera
-    frame = jax.jit(lambda p: camera.rgb(env.object_points(p), env.end_effector(p), res))
+    colors = env.object_colors
+    frame = jax.jit(lambda p: camera.rgb(env.object_points(p), env.end_effector(p), res,
+                                         colors))
     batched = np.ndim(state.t) == 1  # the step counter is a scalar per env
     return np.asarray(jax.vmap(frame)(state.physics) if batched else frame(state.physics))
 

@@ -76,6 +76,7 @@ from dax_physics import (
     step,
 )
 
+from . import render
 from .env import MPMEnv
 from .spec import TaskSpec
 
@@ -321,6 +322,12 @@ class WhipRope(MPMEnv):
         t = jnp.clip(state.t, 0, self.horizon - 1)
         err = path[t] - self.gripper(state.physics)
         return vel[t] + TRACK_GAIN * err / self.dt
+
+    @property
+    def object_colors(self):
+        """The rope's texture: a colour ramp along its length
+        (:func:`dax_tasks.render.ramp_colors`), so its two ends differ in RGB pictures."""
+        return render.ramp_colors(self._rest[:, 0])
 
     def end_effector(self, physics):
         """The gripper position [m] (3,) (centroid of the held particles)."""

@@ -30,6 +30,8 @@ from .spec import Box
 
 #: Observation modes of :class:`ObservationMode`.
 OBS_MODES = ("state", "particles", "height", "rgb", "rgbd")
+#: The modes that are images (rendered by a :class:`dax_tasks.render.Camera`).
+IMAGE_MODES = ("height", "rgb", "rgbd")
 
 
 class Wrapper:
@@ -192,47 +194,71 @@ class ObservationMode(Wrapper):
     * ``state``: the task's own observation (``env.observe``);
     * ``particles``: every object point and then the end effector, ``(N + 1, 3)`` [m];
     * ``height``: a top-down height map ``(S, S, 1)`` float32 [m] above the view's base;
-    * ``rgb``: a top-down picture ``(S, S, 3)`` uint8 (object shaded by height, end
-      effector in red);
+    * ``rgb``: a top-down picture ``(S, S, 3)`` uint8 (the object in its texture,
+      ``env.object_colors``, brightened with height, or shaded by height if it has none;
+      end effector in red);
     * ``rgbd``: both, ``(S, S, 4)`` float32: RGB in [0, 1], then the height map [m].
 
     ``S = image_size``. Images are pure JAX (:mod:`dax_tasks.render`), so they render
     inside ``jit``/``vmap``; their view window is fixed when the wrapper is built (around
-    the goal and the start of episode ``PRNGKey(0)``).
+    the goal and the start of episode ``PRNGKey(0)``). With ``goal_image=True`` an image
+    mode also shows the goal: the picture of ``params.goal`` in the same mode (no end
+    effector) is appended along the channels, ``(S, S, 2 C)`` (a goal-conditioned
+    observation, as goal-conditioned Transporter networks take it; ``rgb`` then stays
+    uint8).
     """
 
-    def __init__(self, env, mode: str = "state", image_size: int = 64):
+    def __init__(self, env, mode: str = "state", image_size: int = 64,
+                 goal_image: bool = False):
         super().__init__(env)
         if mode not in OBS_MODES:
             raise ValueError(f"unknown observation mode {mode!r}; valid: "
                              f"{', '.join(OBS_MODES)}")
         if not (isinstance(image_size, int) and image_size >= 8):
             raise ValueError(f"image_size must be an int >= 8, got {image_size!r}")
-        self.mode, self.image_size = mode, image_size
-        self.camera = render.Camera.for_env(env) if mode in ("height", "rgb", "rgbd") else None
+        if goal_image and mode not in IMAGE_MODES:
+            raise ValueError(f"goal_image needs an image mode ({', '.join(IMAGE_MODES)}), "
+                             f"got {mode!r}")
+        self.mode, self.image_size, self.goal_image = mode, image_size, goal_image
+        self.camera = render.Camera.for_env(env) if mode in IMAGE_MODES else None
 
-    def observation(self, physics):
+    def image(self, points, end_effector=None):
+        """The picture of ``points`` (N, 3) [m] in this image mode (no end effector marker
+        if ``end_effector`` is ``None``)."""
+        size, colors = self.image_size, self.env.object_colors
+        if colors is not None and len(colors) != points.shape[0]:
+            colors = None  # e.g. a goal set of another size than the object (Chamfer)
+        if self.mode == "rgb":
+            return self.camera.rgb(points, end_effector, size, colors)
+        height = self.camera.height(points, size)[..., None]
+        if self.mode == "height":
+            return height
+        rgb = rgb_as_float(self.camera.rgb(points, end_effector, size, colors))
+        return jnp.concatenate([rgb, height], axis=-1)
+
+    def goal_observation(self, params=None):
+        """The goal's picture ``(S, S, C)`` (:meth:`image` of ``params.goal``)."""
+        params = self.env.default_params if params is None else params
+        return self.image(params.goal)
+
+    def observation(self, physics, params=None):
         if self.mode == "state":
             return self.env.observe(physics)
         pts, ee = self.env.object_points(physics), self.env.end_effector(physics)
         if self.mode == "particles":
             return jnp.concatenate([pts, ee[None]], axis=0)
-        size = self.image_size
-        if self.mode == "rgb":
-            return self.camera.rgb(pts, ee, size)
-        height = self.camera.height(pts, size)[..., None]
-        if self.mode == "height":
-            return height
-        rgb = self.camera.rgb(pts, ee, size).astype(jnp.float32) / 255.0
-        return jnp.concatenate([rgb, height], axis=-1)
+        img = self.image(pts, ee)
+        if self.goal_image:
+            img = jnp.concatenate([img, self.goal_observation(params)], axis=-1)
+        return img
 
     def reset(self, key, params=None):
         _, state = self.env.reset(key, params)
-        return self.observation(state.physics), state
+        return self.observation(state.physics, params), state
 
     def step(self, state, action, params=None):
         _, st, reward, done, info = self.env.step(state, action, params)
-        return self.observation(st.physics), st, reward, done, info
+        return self.observation(st.physics, params), st, reward, done, info
 
     @property
     def observation_space(self) -> Box:
@@ -246,8 +272,17 @@ class ObservationMode(Wrapper):
             return Box.unbounded(obs.shape)
         high = np.full(obs.shape, np.inf, np.float32)
         if self.mode == "rgbd":
-            high[..., :3] = 1.0
+            high[..., 0:3] = 1.0
+            if self.goal_image:
+                high[..., 4:7] = 1.0
         return Box(np.zeros(obs.shape, np.float32), high, obs.shape)
+
+
+def rgb_as_float(rgb):
+    """A uint8 picture as the ``rgbd`` mode shows it: float32 in [0, 1] (JAX, so recorded
+    pictures convert to the same bits as the observation: NumPy's float32 division rounds
+    some values differently)."""
+    return jnp.asarray(rgb).astype(jnp.float32) / 255.0
 
 
 def training_env(env, batch_size: int, auto_reset: bool = True, episode_stats: bool = True,
