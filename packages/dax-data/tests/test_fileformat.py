@@ -48,7 +48,9 @@ def test_file_records_spec_versions_units_and_goal(cloth):
         assert {"dax-data", "dax-tasks", "dax-physics", "jax", "h5py"} <= set(meta["versions"])
         assert meta["units"]["points"] == "m" and "dt" in meta["scene_doc"]
         assert meta["generator"] == {"task": "fold_cloth1", "seed": 3, "policy": "expert",
-                                     "point_stride": 1, "overrides": {}, "episodes": 2}
+                                     "point_stride": 1, "overrides": {}, "obs": ["state"],
+                                     "image_size": 64, "episodes": 2}
+        assert meta["images"] == {"modes": []} and f.image_modes == ()
         task = make_task("fold_cloth1")
         np.testing.assert_array_equal(f.goal, task.goal)
         ep = f.episode(1, as_jax=True)
@@ -190,3 +192,84 @@ def test_version_1_files_are_read_but_not_extended(cloth, tmp_path):
         f.attrs["format_version"] = 2  # a version 2 file must have params
     with pytest.raises(dax_data.DataFileError, match="missing file attribute 'params'"):
         dax_data.open_file(path)
+
+
+# ----------------------------------------------------------------------------- pictures
+
+
+@pytest.fixture(scope="module")
+def pictures(tmp_path_factory):
+    """fold_cloth1, 2 expert episodes from seed 3 with height maps and RGB pictures."""
+    path = tmp_path_factory.mktemp("img") / "img.h5"
+    dax_data.generate("fold_cloth1", 2, 3, path, progress=False, obs="state,height,rgb",
+                      image_size=32)
+    return path
+
+
+def test_pictures_are_stored_per_step_as_the_observation_wrapper_renders_them(pictures):
+    from dax_tasks.wrappers import ObservationMode, rgb_as_float
+
+    env = make_task("fold_cloth1")
+    meta, episodes = dax_data.load(pictures, as_jax=True)
+    assert meta["format_version"] == ff.FORMAT_VERSION == 3
+    assert meta["images"]["modes"] == ["height", "rgb"] and meta["images"]["size"] == 32
+    ep = episodes[1]
+    assert isinstance(ep.rgb, jax.Array) and ep.rgb.dtype == np.uint8
+    assert ep.height.shape == (4, 32, 32) and ep.rgb.shape == (4, 32, 32, 3)
+    rgbd = ObservationMode(env, "rgbd", 32)
+    assert meta["images"]["window"] == list(rgbd.camera.window)
+    obs, state = jax.jit(rgbd.reset)(jax.random.PRNGKey(4))  # episode 1 is seed 4
+    np.testing.assert_array_equal(np.asarray(ep.height[0]), np.asarray(obs[..., 3]))
+    np.testing.assert_array_equal(rgb_as_float(ep.rgb[0]), obs[..., :3])
+    _, state, _, _, _ = jax.jit(rgbd.step)(state, ep.actions[0])
+    assert not np.array_equal(np.asarray(ep.height[1]), np.asarray(ep.height[0]))
+    with h5py.File(pictures, "r") as f:
+        ds = f["episodes/000000/rgb"]
+        assert ds.chunks == (1, 32, 32, 3) and ds.fletcher32 and ds.compression == "gzip"
+
+
+def test_corrupted_picture_is_detected_and_missing_pictures_are_named(pictures, tmp_path):
+    path = tmp_path / "flip.h5"
+    path.write_bytes(pictures.read_bytes())
+    with h5py.File(path, "r") as f:
+        info = f["episodes/000001/rgb"].id.get_chunk_info(2)
+    with open(path, "r+b") as fh:
+        fh.seek(info.byte_offset + info.size // 2)
+        fh.write(b"\x00\xff" * 4)
+    with dax_data.open_file(path) as f, pytest.raises(dax_data.DataFileError,
+                                                      match="episode 1: data unreadable"):
+        f.verify()
+    path.write_bytes(pictures.read_bytes())
+    with h5py.File(path, "a") as f:
+        del f["episodes/000000/height"]
+    with pytest.raises(dax_data.DataFileError, match="episode 0: missing dataset 'height'"):
+        dax_data.open_file(path)
+
+
+def test_resuming_with_other_observation_modes_is_refused(pictures, tmp_path):
+    path = tmp_path / "grow.h5"
+    path.write_bytes(pictures.read_bytes())
+    with pytest.raises(dax_data.DataFileError, match='exists with obs=.*"height", "rgb"'):
+        dax_data.generate("fold_cloth1", 3, 3, path, progress=False, obs="state,height",
+                          image_size=32)
+    with pytest.raises(ValueError, match="unknown observation mode"):
+        dax_data.generate("fold_cloth1", 1, 0, tmp_path / "x.h5", obs="depth")
+
+
+def test_standard_sets_are_made_once_and_named_by_what_made_them(tmp_path, monkeypatch):
+    from dax_data.standard import STANDARD_SETS, ensure_standard, standard_path
+
+    monkeypatch.setenv("DAX_CACHE_DIR", str(tmp_path / "cache"))
+    path = ensure_standard("fold_cloth1", "ild", tmp_path)
+    with dax_data.open_file(path) as f:
+        assert len(f) == 1 and f.meta["generator"]["seed"] == STANDARD_SETS["ild"].seed
+    stamp = path.stat().st_mtime_ns
+    assert ensure_standard("fold_cloth1", "ild", tmp_path) == path
+    assert path.stat().st_mtime_ns == stamp, "a complete set was recorded again"
+    env = make_task("fold_cloth1")
+    other = make_task("fold_cloth1", {"lam": 5.0})
+    assert standard_path(other, "ild", tmp_path) != path, "other params, same file name"
+    assert standard_path(env, "transporter", tmp_path, 32) != standard_path(
+        env, "transporter", tmp_path, 64)
+    with pytest.raises(ValueError, match="needs a macro-action task"):
+        ensure_standard("pour_water", "transporter", tmp_path)

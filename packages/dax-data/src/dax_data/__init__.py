@@ -3,7 +3,9 @@
 * :func:`generate` records episodes of a task's scripted expert (or random actions) into an
   HDF5 file, resumably (:mod:`dax_data.record`); :func:`score` compares policies;
 * :func:`open_file` / :func:`load` read such files as NumPy (or JAX) arrays, checking the
-  schema (:mod:`dax_data.fileformat`; the layout is in README.md);
+  schema (:mod:`dax_data.fileformat`; the layout is in README.md), pictures included;
+* :func:`ensure_standard` records (or reuses) the standard demonstration sets the
+  imitation-learning methods train on (:mod:`dax_data.standard`);
 * :func:`write_goals` writes goal files in dax-tasks' format (:mod:`dax_data.goalsets`);
 * :func:`export_episode` writes VTU / XDMF / PLY for ParaView and Blender
   (:mod:`dax_data.export`); :func:`export_minari` a whole file as a Minari dataset
@@ -30,7 +32,8 @@ from .fileformat import (  # noqa: E402  (h5py and NumPy only: no JAX import)
 # Imported on first use, so reading and validating files does not import JAX.
 _LAZY = {"export_episode": "export", "export_minari": "minari_export",
          "write_goal": "goalsets", "write_goals": "goalsets", "Recorder": "record",
-         "generate": "record", "score": "record"}
+         "generate": "record", "score": "record", "ensure_standard": "standard",
+         "standard_path": "standard", "STANDARD_SETS": "standard"}
 
 
 def __getattr__(name):
@@ -42,7 +45,7 @@ def __getattr__(name):
 
 
 __all__ = [
-    "FORMAT_VERSION", "DataFileError", "DemoFile", "Episode", "Recorder", "__version__",
-    "export_episode", "export_minari", "generate", "load", "open_file", "score",
-    "write_goal", "write_goals",
+    "FORMAT_VERSION", "STANDARD_SETS", "DataFileError", "DemoFile", "Episode", "Recorder",
+    "__version__", "ensure_standard", "export_episode", "export_minari", "generate", "load",
+    "open_file", "score", "standard_path", "write_goal", "write_goals",
 ]

@@ -56,8 +56,23 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
                    help="change a TaskSpec field (substeps=160) or a scene field "
                         "(scene.n=6); VALUE is JSON; repeatable (for small test runs)")
+    g.add_argument("--obs", default="state", metavar="MODES",
+                   help="observation modes to store, comma-separated: state (always), "
+                        "height, rgb (top-down pictures; default: state)")
+    g.add_argument("--image-size", type=_positive_int, default=64, metavar="S",
+                   help="picture size in pixels for height / rgb (default 64)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    d = sub.add_parser("standard", help="record a task's standard demonstration sets "
+                                        "(what the imitation-learning methods train on)")
+    d.add_argument("--task", required=True, help="task name or 'all'")
+    d.add_argument("--out", required=True, help="output directory")
+    d.add_argument("--set", default="all", help="comma-separated sets (transporter, ild) "
+                                                "or all (those that apply to the task)")
+    d.add_argument("--image-size", type=_positive_int, default=64, metavar="S",
+                   help="picture size of the image sets in pixels (default 64)")
+    d.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     o = sub.add_parser("goals", help="write goal files in dax-tasks' format")
     o.add_argument("--task", required=True, help="task name or 'all'")
@@ -100,7 +115,8 @@ def _generate(a) -> None:
 
     out = generate(a.task, a.episodes, a.seed, a.out, policy=a.policy,
                    point_stride=a.point_stride, progress=not a.no_progress,
-                   overrides=parse_overrides(a.task, a.override))
+                   overrides=parse_overrides(a.task, a.override), obs=a.obs,
+                   image_size=a.image_size)
     if a.json:
         print(json.dumps(out, indent=1))
         return
@@ -110,6 +126,28 @@ def _generate(a) -> None:
           f"({out['recorded_now']} new, {out['resumed_from']} kept), score "
           f"{out['score_mean']:.4f} ± {out['score_sem']:.4f}, {spe}, "
           f"{out['file_bytes']} bytes")
+
+
+def _standard(a) -> None:
+    from .goalsets import task_names
+    from .record import make_task
+    from .standard import STANDARD_SETS, applies, ensure_standard, get_set
+
+    names = list(STANDARD_SETS) if a.set == "all" else [n.strip() for n in a.set.split(",")]
+    for n in names:
+        get_set(n)
+    for task in task_names(a.task):
+        env = make_task(task)
+        for n in names:
+            if not applies(env, n):
+                if a.set != "all":
+                    raise ValueError(f"standard set {n!r} does not apply to {task} "
+                                     f"({env.spec.action_kind} actions)")
+                continue
+            path = ensure_standard(task, n, a.out, image_size=a.image_size,
+                                   progress=not a.no_progress)
+            s = get_set(n)
+            print(f"{task} {n}: {s.episodes} episodes from seed {s.seed} -> {path}")
 
 
 def _goals(a) -> None:
@@ -124,7 +162,7 @@ def _inspect(a) -> None:
     with ff.DemoFile(a.file) as f:
         info = f.summary()
         ep0 = f._f["episodes"][ff.episode_name(0)] if len(f) else None
-        shapes = ({k: list(ep0[k].shape) for k in ff.EPISODE_DATASETS}
+        shapes = ({k: list(ep0[k].shape) for k in f._datasets()}
                   if ep0 is not None else {})
     info["episode_0_shapes"] = shapes
     if a.json:
@@ -177,7 +215,7 @@ def _score(a) -> None:
         print(f"{a.task} {policy}: not available for this task")
 
 
-COMMANDS = {"generate": _generate, "goals": _goals, "inspect": _inspect,
+COMMANDS = {"generate": _generate, "standard": _standard, "goals": _goals, "inspect": _inspect,
             "validate": _validate, "export": _export, "score": _score}
 
 

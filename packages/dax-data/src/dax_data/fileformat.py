@@ -3,8 +3,9 @@
 The layout is documented in the package README ("File format"). In short::
 
     /                      file attributes: format, format_version, task, fingerprint,
-                           versions, spec, params, units, scene_doc, generator,
-                           created_utc (version 1 files have no ``params``)
+                           versions, spec, params, images, units, scene_doc, generator,
+                           created_utc (version 1 files have no ``params``, version 1
+                           and 2 files no ``images``)
     /goal                  (N, 3) float32 [m], attribute ``provenance`` (JSON)
     /episodes/000000       group per episode, attributes seed, policy, length, score
         actions            (T, A) float32
@@ -14,6 +15,10 @@ The layout is documented in the package README ("File format"). In short::
         points             (K, N, 3) float32 [m] object points at steps ``point_steps``
         point_steps        (K,) int32           0, k, 2k, ... and always T
         end_effector       (T + 1, 3) float32 [m]
+        height             (T + 1, S, S) float32 [m]  top-down height maps  } if the
+        rgb                (T + 1, S, S, 3) uint8     top-down pictures     } images
+                                                                            attribute
+                                                                            lists them
 
 Every write goes to a temporary file in the same directory that is flushed, fsynced and
 renamed into place (:func:`append_episode`, with :func:`dax_tasks.io.atomic_path`, the one
@@ -38,13 +43,15 @@ import numpy as np
 
 #: Identifies a dax-data demonstration file (the ``format`` attribute).
 FORMAT_NAME = "dax-data/demonstrations"
-#: The layout this version writes; it reads versions 1 and 2 and refuses larger numbers.
+#: The layout this version writes; it reads versions 1 to 3 and refuses larger numbers.
 #: Version 2: ``spec`` is the spec's own JSON (:meth:`dax_tasks.TaskSpec.to_json`: the
 #: scene's class by name, no module path), ``fingerprint`` the spec's own, and ``params``
 #: holds the numbers the episodes ran with (λ, the auxiliary weight, the physics numbers),
 #: which version 1 kept in the spec. Version 1 files are still read, validated and
 #: exported, but not extended (:func:`check_extendable`).
-FORMAT_VERSION = 2
+#: Version 3: the ``images`` attribute (the image modes stored, their size and the camera)
+#: and the optional per-episode datasets ``height`` and ``rgb`` (:data:`IMAGE_DATASETS`).
+FORMAT_VERSION = 3
 
 #: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
 #: checked against each other: T steps, A action dim, O observation dim, K point frames,
@@ -58,12 +65,22 @@ EPISODE_DATASETS = {
     "point_steps": ("int32", ("K",)),
     "end_effector": ("float32", ("T+1", 3)),
 }
+#: Optional per-episode image datasets (the observation modes of
+#: :class:`dax_tasks.wrappers.ObservationMode` a file holds; ``S`` the image size): one
+#: picture per observation, the reset one first, rendered by the camera in the ``images``
+#: attribute.
+IMAGE_DATASETS = {
+    "height": ("float32", ("T+1", "S", "S")),
+    "rgb": ("uint8", ("T+1", "S", "S", 3)),
+}
+#: Observation modes a file can hold: the task's ``state`` observation (always) and images.
+OBS_MODES = ("state", *IMAGE_DATASETS)
 EPISODE_ATTRS = ("seed", "policy", "length", "score")
 FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "spec", "units",
               "scene_doc", "generator", "created_utc")
 #: Attributes a file of a given version has beyond :data:`FILE_ATTRS`.
-VERSION_ATTRS = {1: (), 2: ("params",)}
-JSON_ATTRS = ("versions", "spec", "params", "units", "generator")
+VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images")}
+JSON_ATTRS = ("versions", "spec", "params", "images", "units", "generator")
 
 #: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
 #: attribute). Scene fields are SI; their units are in the scene class docstring, stored
@@ -86,6 +103,8 @@ UNITS = {
     "r_gt": "1 (exp(-lam * D))",
     "points": "m",
     "end_effector": "m",
+    "height": "m above the camera's base height images.window[4]",
+    "rgb": "0-255 (sRGB)",
     "score": "1 (r_gt after the last step)",
 }
 
@@ -110,6 +129,10 @@ class Episode:
     points: Any
     point_steps: Any
     end_effector: Any
+    #: (T + 1, S, S) height maps [m] and (T + 1, S, S, 3) uint8 pictures, or ``None`` when
+    #: the file holds no such images
+    height: Any = None
+    rgb: Any = None
 
     @property
     def length(self) -> int:
@@ -167,9 +190,20 @@ def params_to_json(params) -> dict:
             "physics": {k: numbers(v) for k, v in fields.items() if v is not None}}
 
 
-def header(env, generator: dict) -> dict:
+def images_meta(modes=(), size: int | None = None, camera=None) -> dict:
+    """The ``images`` attribute: the image modes stored (of :data:`IMAGE_DATASETS`), their
+    size in pixels, and the camera that rendered them (``window`` ``(x0, x1, y0, y1, z0)``
+    [m] and the points' splat ``radius`` [m], a :class:`dax_tasks.render.Camera`)."""
+    modes = [m for m in IMAGE_DATASETS if m in modes]
+    if not modes:
+        return {"modes": []}
+    return {"modes": modes, "size": int(size), "window": [float(v) for v in camera.window],
+            "radius": float(camera.radius)}
+
+
+def header(env, generator: dict, images: dict | None = None) -> dict:
     """The file attributes of a new file for ``env`` (a :class:`dax_tasks.Env` built by
-    ``dax_tasks.make``)."""
+    ``dax_tasks.make``); ``images`` from :func:`images_meta` (default: none)."""
     import inspect
 
     spec = env.spec
@@ -182,6 +216,7 @@ def header(env, generator: dict) -> dict:
         "versions": package_versions(),
         "spec": spec.to_json(),
         "params": params_to_json(env.default_params),
+        "images": images if images is not None else images_meta(),
         "units": UNITS,
         "scene_doc": scene_doc or "",
         "generator": generator,
@@ -226,12 +261,12 @@ _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
                 "fletcher32": True}
 
 
-def _write_array(group: h5py.Group, name: str, data) -> None:
+def _write_array(group: h5py.Group, name: str, data, chunks=True) -> None:
     data = np.ascontiguousarray(data)
     if data.size == 0:
         group.create_dataset(name, data=data)
     else:
-        group.create_dataset(name, data=data, chunks=True, **_COMPRESSION)
+        group.create_dataset(name, data=data, chunks=chunks, **_COMPRESSION)
 
 
 def stale_temporaries(path: str | os.PathLike) -> list:
@@ -266,7 +301,8 @@ def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
                    arrays: dict) -> None:
     """Add episode ``index`` to the file at ``path``: copy the file to a temporary file,
     add the group there, fsync, rename over ``path``. ``arrays`` holds the datasets of
-    :data:`EPISODE_DATASETS`."""
+    :data:`EPISODE_DATASETS` and those of :data:`IMAGE_DATASETS` the file's ``images``
+    attribute lists (one chunk per picture)."""
     path = Path(path)
     missing = sorted(set(EPISODE_DATASETS) - set(arrays))
     if missing:
@@ -286,6 +322,13 @@ def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
         g.attrs["score"] = float(r_gt[-1]) if r_gt.size else float("nan")
         for key, (dtype, _) in EPISODE_DATASETS.items():
             _write_array(g, key, np.asarray(arrays[key], dtype))
+        modes = json.loads(_text(f.attrs["images"]))["modes"] if "images" in f.attrs else []
+        missing = sorted(set(modes) - set(arrays))
+        if missing:
+            raise ValueError(f"episode arrays missing the file's image datasets {missing}")
+        for key in modes:
+            data = np.asarray(arrays[key], IMAGE_DATASETS[key][0])
+            _write_array(g, key, data, chunks=(1, *data.shape[1:]))
 
 
 # ---------------------------------------------------------------------- reading
@@ -350,7 +393,9 @@ class DemoFile:
             else:
                 value = _text(value)
             meta[key] = value
+        meta.setdefault("images", images_meta())  # versions 1 and 2 hold no images
         self.meta = meta
+        self.image_modes = tuple(self._check_images(meta["images"]))
         if "goal" not in f or not isinstance(f["goal"], h5py.Dataset):
             self._fail("missing dataset /goal")
         goal = f["goal"]
@@ -372,8 +417,9 @@ class DemoFile:
             for key in EPISODE_ATTRS:
                 if key not in g.attrs:
                     self._fail(f"{where}: missing attribute {key!r}")
-            sizes = {"T": int(g.attrs["length"]), "A": act_dim, "O": obs_dim, "N": n_points}
-            for key, (dtype, dims) in EPISODE_DATASETS.items():
+            sizes = {"T": int(g.attrs["length"]), "A": act_dim, "O": obs_dim, "N": n_points,
+                     "S": meta["images"].get("size")}
+            for key, (dtype, dims) in self._datasets().items():
                 if key not in g or not isinstance(g[key], h5py.Dataset):
                     self._fail(f"{where}: missing dataset {key!r}")
                 ds = g[key]
@@ -400,6 +446,31 @@ class DemoFile:
             act_dim, obs_dim, n_points = sizes["A"], sizes["O"], sizes["N"]
         self._names = names
 
+    def _check_images(self, images) -> list:
+        """The image modes of a valid ``images`` attribute (see :func:`images_meta`)."""
+        if not isinstance(images, dict) or not isinstance(images.get("modes"), list):
+            self._fail(f"file attribute 'images' must hold a list 'modes', got {images!r}")
+        modes = images["modes"]
+        unknown = [m for m in modes if m not in IMAGE_DATASETS]
+        if unknown:
+            self._fail(f"unknown image mode(s) {unknown} in the 'images' attribute; known: "
+                       f"{', '.join(IMAGE_DATASETS)}")
+        if modes:
+            size, window, radius = images.get("size"), images.get("window"), images.get("radius")
+            if not (isinstance(size, int) and size > 0):
+                self._fail(f"'images' size must be a positive int, got {size!r}")
+            if not (isinstance(window, list) and len(window) == 5
+                    and all(isinstance(v, (int, float)) for v in window)):
+                self._fail(f"'images' window must be 5 numbers (x0, x1, y0, y1, z0), got "
+                           f"{window!r}")
+            if not isinstance(radius, (int, float)):
+                self._fail(f"'images' radius must be a number, got {radius!r}")
+        return modes
+
+    def _datasets(self) -> dict:
+        """The datasets every episode of this file has: name -> (dtype, dimensions)."""
+        return {**EPISODE_DATASETS, **{m: IMAGE_DATASETS[m] for m in self.image_modes}}
+
     # -- access
     @property
     def goal(self) -> np.ndarray:
@@ -425,7 +496,7 @@ class DemoFile:
                                 f"0..{len(self) - 1})")
         g = self._f["episodes"][episode_name(int(k))]
         try:
-            arrays = {key: g[key][()] for key in EPISODE_DATASETS}
+            arrays = {key: g[key][()] for key in self._datasets()}
         except (OSError, ValueError) as err:
             raise DataFileError(f"{self.path}: episode {k}: data unreadable, truncated or "
                                 f"corrupted ({_short(err)})") from None
@@ -460,7 +531,7 @@ class DemoFile:
         for k in range(len(self)):
             ep = self.episode(k)
             for key in ("actions", "observations", "rewards", "r_gt", "points",
-                        "end_effector"):
+                        "end_effector", *(["height"] if ep.height is not None else [])):
                 if not np.all(np.isfinite(getattr(ep, key))):
                     self._fail(f"episode {k}: dataset {key!r} contains NaN or inf")
             steps = ep.point_steps

@@ -99,23 +99,68 @@ def _random_action(spec, episode_key, t):
     return jax.random.uniform(key, low.shape, jnp.float32, low, high)
 
 
+def check_obs(obs) -> tuple:
+    """The observation modes to store, from a list or a comma-separated string
+    (``"state,height,rgb"``): ``state`` always (the task's own observation), plus the image
+    modes of :data:`dax_data.fileformat.IMAGE_DATASETS` asked for, in a fixed order."""
+    items = [o.strip() for o in obs.split(",")] if isinstance(obs, str) else list(obs)
+    unknown = [o for o in items if o not in ff.OBS_MODES]
+    if unknown:
+        raise ValueError(f"unknown observation mode(s) {unknown}; valid: "
+                         f"{', '.join(ff.OBS_MODES)}")
+    return tuple(m for m in ff.OBS_MODES if m == "state" or m in items)
+
+
+def check_image_size(size) -> int:
+    if not (isinstance(size, int) and not isinstance(size, bool) and size >= 8):
+        raise ValueError(f"image size must be an int >= 8 (pixels), got {size!r}")
+    return size
+
+
 class Recorder:
     """Runs single episodes of one env (a pure :class:`dax_tasks.Env`, unbatched) with its
-    default params and returns their arrays; reset, step and the policy are jitted once."""
+    default params and returns their arrays; reset, step and the policy are jitted once.
 
-    def __init__(self, env, policy: str = "expert", point_stride: int = 1):
+    ``obs``: the observation modes to record (:func:`check_obs`): the image modes are
+    rendered at ``image_size`` pixels by the env's camera (:class:`dax_tasks.render.Camera`,
+    the one :class:`dax_tasks.wrappers.ObservationMode` uses, so a recorded picture equals
+    the observation a policy sees in that mode)."""
+
+    def __init__(self, env, policy: str = "expert", point_stride: int = 1,
+                 obs=("state",), image_size: int = 64):
         _check_policy(env, policy)
         if not (isinstance(point_stride, int) and point_stride > 0):
             raise ValueError(f"point_stride must be a positive int, got {point_stride!r}")
         self.env, self.policy, self.point_stride = env, policy, point_stride
+        self.obs, self.image_size = check_obs(obs), check_image_size(image_size)
         self.params = env.default_params
         spec = env.spec
         self._reset = jax.jit(env.reset)
         self._step = jax.jit(env.step)
         self._expert = jax.jit(env.expert_action) if policy == "expert" else None
-        self._probe = jax.jit(lambda s: (env.object_points(s.physics),
-                                         env.end_effector(s.physics)))
+        self.image_modes = tuple(m for m in self.obs if m in ff.IMAGE_DATASETS)
+        self.camera = None
+        if self.image_modes:
+            from dax_tasks.render import Camera
+
+            self.camera = Camera.for_env(env)
+        self._probe = jax.jit(self._points_and_images)
         self._random = jax.jit(lambda k, t: _random_action(spec, k, t))
+
+    def _points_and_images(self, state):
+        env, camera, size = self.env, self.camera, self.image_size
+        pts, ee = env.object_points(state.physics), env.end_effector(state.physics)
+        images = {}
+        if "height" in self.image_modes:
+            images["height"] = camera.height(pts, size)
+        if "rgb" in self.image_modes:
+            images["rgb"] = camera.rgb(pts, ee, size, env.object_colors)
+        return pts, ee, images
+
+    @property
+    def images_meta(self) -> dict:
+        """The file's ``images`` attribute (:func:`dax_data.fileformat.images_meta`)."""
+        return ff.images_meta(self.image_modes, self.image_size, self.camera)
 
     def point_steps(self, length: int) -> np.ndarray:
         steps = list(range(0, length + 1, self.point_stride))
@@ -134,9 +179,10 @@ class Recorder:
         key = jax.random.PRNGKey(seed)
         obs, state = self._reset(key, params)
         observations, actions, rewards, r_gt, ee, points = [np.asarray(obs)], [], [], [], [], {}
-        pts, e = self._probe(state)
+        pts, e, img = self._probe(state)
         points[0], ee0 = np.asarray(pts), np.asarray(e)
         ee.append(ee0)
+        images = {k: [np.asarray(v)] for k, v in img.items()}
         for t in range(env.horizon):
             action = self.action(state, key, t)
             obs, state, reward, done, info = self._step(state, action, params)
@@ -144,8 +190,10 @@ class Recorder:
             observations.append(np.asarray(obs))
             rewards.append(np.asarray(reward))
             r_gt.append(np.asarray(info["r_gt"]))
-            pts, e = self._probe(state)
+            pts, e, img = self._probe(state)
             ee.append(np.asarray(e))
+            for k, v in img.items():
+                images[k].append(np.asarray(v))
             if (t + 1) % self.point_stride == 0 or bool(done):
                 points[t + 1] = np.asarray(pts)
             if bool(done):
@@ -155,12 +203,14 @@ class Recorder:
         return {"actions": np.stack(actions), "observations": np.stack(observations),
                 "rewards": np.stack(rewards), "r_gt": np.stack(r_gt),
                 "points": np.stack([points[int(s)] for s in steps]), "point_steps": steps,
-                "end_effector": np.stack(ee)}
+                "end_effector": np.stack(ee), **{k: np.stack(v) for k, v in images.items()}}
 
 
-def _generator_args(task_name, seed, policy, point_stride, overrides) -> dict:
+def _generator_args(task_name, seed, policy, point_stride, overrides, obs,
+                    image_size) -> dict:
     return {"task": task_name, "seed": int(seed), "policy": policy,
-            "point_stride": int(point_stride), "overrides": ff._jsonable(overrides or {})}
+            "point_stride": int(point_stride), "overrides": ff._jsonable(overrides or {}),
+            "obs": list(obs), "image_size": int(image_size)}
 
 
 def _check_args(path: Path, f: ff.DemoFile, args: dict, episodes: int) -> None:
@@ -201,34 +251,42 @@ def _check_task(path: Path, f: ff.DemoFile, env) -> None:
 
 def generate(task_name: str, episodes: int, seed: int, out, policy: str = "expert",
              point_stride: int = 1, overrides: dict | None = None,
-             progress: bool = True) -> dict:
+             progress: bool = True, obs=("state",), image_size: int = 64) -> dict:
     """Record ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) into ``out``.
 
-    If ``out`` exists and was made with the same task, seed, policy, point stride, spec,
-    code and goal, its episodes are kept and only the missing ones are recorded (an
-    interrupted run resumes; a larger ``episodes`` extends the file). Each episode is
-    committed atomically. Returns a summary: episodes recorded now, seconds per episode,
-    file size, scores.
+    ``obs``: the observation modes to store besides the task's ``state`` observation:
+    ``height`` and/or ``rgb`` pictures of ``image_size`` pixels (:class:`Recorder`). If
+    ``out`` exists and was made with the same task, seed, policy, point stride, observation
+    modes, image size, spec, code and goal, its episodes are kept and only the missing ones
+    are recorded (an interrupted run resumes; a larger ``episodes`` extends the file). Each
+    episode is committed atomically. Returns a summary: episodes recorded now, seconds per
+    episode, file size, scores.
     """
     if not (isinstance(episodes, int) and episodes > 0):
         raise ValueError(f"episodes must be a positive int, got {episodes!r}")
+    obs, image_size = check_obs(obs), check_image_size(image_size)
     path = Path(out)
     if path.exists() and not path.is_file():
         raise ValueError(f"{path}: exists and is not a file")
-    args = _generator_args(task_name, seed, policy, point_stride, overrides)
+    args = _generator_args(task_name, seed, policy, point_stride, overrides, obs, image_size)
     if path.exists():  # check the file and the arguments first: they fail fast
         with ff.DemoFile(path) as f:
+            ff.check_extendable(path, f.meta)
             _check_args(path, f, args, episodes)
     env = make_task(task_name, overrides=overrides)
-    recorder = Recorder(env, policy, point_stride)
+    recorder = Recorder(env, policy, point_stride, obs, image_size)
     for stale in ff.stale_temporaries(path):  # left by a killed writer of this file
         stale.unlink(missing_ok=True)
     if path.exists():
         with ff.DemoFile(path) as f:
             _check_task(path, f, env)
+            if f.meta["images"] != recorder.images_meta:
+                raise DataFileError(f"{path}: its pictures were rendered by another camera "
+                                    f"({f.meta['images']}, now {recorder.images_meta}); "
+                                    f"choose another --out")
             done = len(f)
     else:
-        attrs = ff.header(env, {**args, "episodes": episodes})
+        attrs = ff.header(env, {**args, "episodes": episodes}, recorder.images_meta)
         ff.create(path, attrs, env.goal, env.goal_provenance or {})
         done = 0
     _set_target(path, args, episodes)
