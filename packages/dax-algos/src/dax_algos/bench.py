@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 import dax_tasks
 from dax_tasks.io import atomic_write
 
-from . import csvlog, learning, registry, report, trained
+from . import common, csvlog, demos, learning, registry, report, trained
 
 COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
            "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
@@ -158,13 +158,14 @@ def evaluate(out, runnable) -> dict:
 def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
-             progress: bool = True) -> list[dict]:
+             progress: bool = True, demo_dir: str | os.PathLike | None = None) -> list[dict]:
     """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
 
     task_overrides: ``{task: {TaskSpec field or lam/aux_weight: value}}`` passed to
     ``dax_tasks.make`` (e.g. a coarser scene for tests). method_overrides: ``{method:
     {config field: value}}`` on top of the budget. cache_goal: passed to
-    ``dax_tasks.make``."""
+    ``dax_tasks.make``. demo_dir: where the imitation methods' demonstration sets are made
+    or reused (default ``$DAX_CACHE_DIR/demos``, :func:`dax_data.standard.cache_dir`)."""
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
     if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
@@ -199,7 +200,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
                 continue
             bar.set_postfix_str(f"{t} / {m}")
             _run_method(env, t, m, m_seeds, budget, method_overrides.get(m, {}), csv_path,
-                        bar)
+                        bar, demo_dir, task_overrides.get(t))
         jax.clear_caches()
     bar.close()
     rows = read_rows(csv_path)
@@ -207,30 +208,35 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     return rows
 
 
-def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar):
+def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar, demo_dir=None,
+                task_overrides=None):
     method = registry.get(m)
     params = env.default_params
     try:
         config = method.config(budget, t, **overrides)
         runnable = method.build(env, config)
+        data = ()
+        if runnable.demos is not None:  # an imitation method: its demonstrations first
+            path = demos.locate(env, runnable.demos, demo_dir, task_overrides)
+            data = (runnable.demos.load(env, path),)
         key0 = jax.random.PRNGKey(0)
         t0 = time.perf_counter()
         if runnable.learns:  # seeds trained together under vmap (the PureJaxRL pattern)
             keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds))
-            compiled = jax.jit(jax.vmap(runnable.episode, in_axes=(0, None))).lower(
-                keys, params).compile()
+            batched = jax.vmap(runnable.episode, in_axes=(0, None) + (None,) * len(data))
+            compiled = jax.jit(batched).lower(keys, params, *data).compile()
         else:
             compiled = jax.jit(runnable.episode).lower(key0, params).compile()
         compile_s = time.perf_counter() - t0
     except Exception as err:  # noqa: BLE001
-        status = "skipped" if "has no scripted expert" in str(err) else "failed"
+        status = "skipped" if isinstance(err, common.NotApplicable) else "failed"
         for s in seeds:
             append_row(csv_path, _row(t, m, s, budget, status=status, error=_error_text(err)))
             bar.update()
         return
     if runnable.learns:
         _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
-                     csv_path, bar)
+                     csv_path, bar, data)
         return
     for s in seeds:
         try:
@@ -247,7 +253,7 @@ def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar):
 
 
 def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
-                 csv_path, bar):
+                 csv_path, bar, data=()):
     """Train every seed in one vmapped call, then per seed: its learning curve (appended
     to ``learning_<task>.csv`` before its results row, so a resumed run never lacks one),
     its policy file (``policies/<task>/<method>/seed<k>.msgpack``) and its results row.
@@ -256,7 +262,8 @@ def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, com
     out_dir = csv_path.parent
     try:
         t0 = time.perf_counter()
-        out = jax.device_get(jax.block_until_ready(compiled(keys, env.default_params)))
+        out = jax.device_get(jax.block_until_ready(compiled(keys, env.default_params,
+                                                            *data)))
         wall = (time.perf_counter() - t0) / len(seeds)
     except Exception as err:  # noqa: BLE001
         for s in seeds:
@@ -272,7 +279,8 @@ def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, com
             curve = [dict(task=t, method=m, seed=s, budget=budget, update=u,
                           env_steps=int(metrics.env_steps[u]), wall_s=wall * (u + 1) / n,
                           score=float(metrics.score[u])) for u in range(n)]
-            learning.append_curve(learning.learning_path(out_dir, t), curve)
+            if runnable.train_env_steps:  # no curve for training on demonstrations only
+                learning.append_curve(learning.learning_path(out_dir, t), curve)
             values = evaluate(one.episode, runnable)
             if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(one.policy)):
                 trained.save_trained(out_dir / "policies" / t / m / f"seed{s}.msgpack", m,
@@ -310,6 +318,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--seeds", type=int, default=1, help="number of seeds K (seeds 0..K-1)")
     run.add_argument("--quick", action="store_true", help="small planner budgets (smoke run)")
     run.add_argument("--out", default="results", help="output directory")
+    run.add_argument("--demos", default=None, metavar="DIR",
+                     help="where the imitation methods' demonstration sets are recorded or "
+                          "reused (default: $DAX_CACHE_DIR/demos, ~/.cache/dax/demos)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     sub.add_parser("list", help="list the tasks and methods")
     return p
@@ -334,7 +345,7 @@ def main(argv=None) -> int:
     _default_compilation_cache()
     try:
         rows = run_grid(args.tasks, args.methods, args.seeds, args.out, quick=args.quick,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, demo_dir=args.demos)
     except ValueError as err:
         print(f"dax-bench: error: {err}", file=sys.stderr)
         return 2

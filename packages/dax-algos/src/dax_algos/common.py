@@ -25,6 +25,12 @@ import numpy as np
 OBJECTIVES = ("final", "sum")
 
 
+class NotApplicable(ValueError):
+    """A method does not apply to a task (the expert row on a task without a scripted
+    expert, Transporter networks on a task without macro actions); the runner records
+    ``status=skipped``, not a failure."""
+
+
 def action_scale(env) -> tuple[jnp.ndarray, jnp.ndarray]:
     """``(mid, half)`` of the env's action box: ``action = mid + half * z``."""
     low = np.asarray(env.spec.action_low, np.float32)

@@ -37,7 +37,7 @@ def make_random(env, config: RandomConfig) -> common.Planner:
 
 def make_expert(env, config: ExpertConfig) -> common.Planner:
     if not env.has_expert:
-        raise ValueError(f"task {env.spec.name!r} has no scripted expert")
+        raise common.NotApplicable(f"task {env.spec.name!r} has no scripted expert")
 
     def init(key):
         return jnp.zeros((), jnp.float32)

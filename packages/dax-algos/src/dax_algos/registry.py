@@ -20,13 +20,27 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
-from . import apg, cem_mpc, common, diff_cem_mpc, diff_mpc, ppo, reference, rl, shac
+from . import (
+    apg,
+    cem_mpc,
+    common,
+    diff_cem_mpc,
+    diff_mpc,
+    ild,
+    ppo,
+    reference,
+    rl,
+    shac,
+    transporter,
+)
 from .apg import APGConfig
 from .cem_mpc import CEMConfig
 from .diff_cem_mpc import DiffCEMConfig
 from .diff_mpc import DiffMPCConfig
+from .ild import ILDConfig
 from .ppo import PPOConfig
 from .shac import SHACConfig
+from .transporter import TransporterConfig
 
 BUDGETS = ("quick", "full")
 #: Tasks simulated with MLS-MPM (70-100 env steps of 10-25 ms, or 6 pushes of 0.13 s, on 2
@@ -49,6 +63,10 @@ class Runnable:
     learns: bool = False
     #: training environment steps of one run (the learning curve's end), for learners
     train_env_steps: int = 0
+    #: the demonstrations an imitation method learns from (a :class:`dax_algos.demos.
+    #: DemoSpec`): the runner locates the file and passes ``load(env, path)`` to
+    #: ``episode`` as a third argument, ``episode(key, params, data)``
+    demos: Any = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,25 +127,34 @@ def planner_method(name, kind, config_cls, make_planner, budgets, uses_gradients
 
 def learner_method(name, kind, config_cls, module, budgets, uses_gradients):
     """A :class:`Method` from a learning module with ``make_train(env, config) ->
-    train(key, params)`` and ``make_act(env, config)`` (see :mod:`dax_algos.rl`). One run
-    trains from the seed's key and evaluates ``config.n_eval`` rollouts; the environment
-    steps counted are training plus evaluation, the backpropagated ones (APG, SHAC) every
-    training step. Non-finite gradients are skipped by the method and counted
-    (``nonfinite_grads``), not a failure of the run."""
+    train(key, params[, data])`` and ``make_act(env, config)`` (see :mod:`dax_algos.rl`),
+    and optionally ``make_evaluate(env, config)`` (its own evaluation rollouts, e.g. on
+    pictures), ``demo_spec(config)`` (the demonstrations its ``train`` takes as ``data``)
+    and ``train_env_steps(env, config)``. One run trains from the seed's key and evaluates
+    ``config.n_eval`` rollouts; the environment steps counted are training plus evaluation,
+    the backpropagated ones (APG, SHAC, ILD) every training step. Non-finite gradients are
+    skipped by the method and counted (``nonfinite_grads``), not a failure of the run."""
 
     def build(env, config):
-        episode = rl.learner_episode(module.make_train, module.make_act(env, config), env,
-                                     config, config.n_eval)
-        train_steps = _train_env_steps(env, config)
+        act = module.make_act(env, config)
+        evaluate = (module.make_evaluate(env, config) if hasattr(module, "make_evaluate")
+                    else None)
+        episode = rl.learner_episode(module.make_train, act, env, config, config.n_eval,
+                                     evaluate)
+        train_steps = _train_env_steps(module, env, config)
+        demos = module.demo_spec(config) if hasattr(module, "demo_spec") else None
         return Runnable(episode, train_steps + config.n_eval * env.horizon,
                         train_steps if uses_gradients else 0, uses_gradients,
-                        nan_grads_zeroed=True, learns=True, train_env_steps=train_steps)
+                        nan_grads_zeroed=True, learns=True, train_env_steps=train_steps,
+                        demos=demos)
 
     return Method(name, kind, config_cls, build, MappingProxyType(dict(budgets)),
                   uses_gradients, learner=module)
 
 
-def _train_env_steps(env, config) -> int:
+def _train_env_steps(module, env, config) -> int:
+    if hasattr(module, "train_env_steps"):
+        return module.train_env_steps(env, config)
     if hasattr(config, "steps_per_update"):
         return config.steps_per_update * config.updates
     return config.num_envs * config.window_for(env) * config.updates_for(env)
@@ -156,6 +183,21 @@ RL_BUDGETS = {
                                  critic_minibatches=2, n_eval=2),
              "full": dict(total_env_steps=480, num_envs=8),
              "full_heavy": dict(total_env_steps=320, num_envs=4, window=10)},
+}
+
+#: Training budgets of the imitation methods: Transporter in Adam steps on the 10
+#: demonstrations (no environment steps), ILD in environment steps (one episode per env and
+#: update). See README.md for what they cost.
+_TRANSPORTER = {"quick": dict(train_steps=200, n_eval=4), "full": dict(train_steps=1000)}
+IL_BUDGETS = {
+    "transporter": _TRANSPORTER,
+    "transporter_rgb": {k: {**v, "rgb": True} for k, v in _TRANSPORTER.items()},
+    # ILD: every update is one whole episode per env (in windows on the MPM tasks), so a
+    # budget below num_envs * horizon still runs one update
+    "ild": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=3e-4, n_eval=4),
+            "quick_heavy": dict(total_env_steps=1, num_envs=2, window=4, n_eval=2),
+            "full": dict(total_env_steps=480, num_envs=4, learning_rate=3e-4),
+            "full_heavy": dict(total_env_steps=1000, num_envs=2, window=10)},
 }
 
 _METHODS: dict[str, Method] = {}
@@ -201,5 +243,10 @@ for _m in (
     learner_method("ppo", "rl", PPOConfig, ppo, RL_BUDGETS["ppo"], uses_gradients=False),
     learner_method("apg", "rl", APGConfig, apg, RL_BUDGETS["apg"], uses_gradients=True),
     learner_method("shac", "rl", SHACConfig, shac, RL_BUDGETS["shac"], uses_gradients=True),
+    learner_method("transporter", "il", TransporterConfig, transporter,
+                   IL_BUDGETS["transporter"], uses_gradients=False),
+    learner_method("transporter_rgb", "il", TransporterConfig, transporter,
+                   IL_BUDGETS["transporter_rgb"], uses_gradients=False),
+    learner_method("ild", "il", ILDConfig, ild, IL_BUDGETS["ild"], uses_gradients=True),
 ):
     register(_m)

@@ -163,26 +163,32 @@ def finished_episodes(info, done):
 # ----------------------------------------------------------------------------- evaluation
 
 class Policy(NamedTuple):
-    """What evaluation needs of a trained policy: ``act(state, obs_norm, feats) -> z``."""
+    """What evaluation needs of a trained policy: ``act(policy, inputs) -> z``; ``obs_norm``
+    is ``None`` for a policy that normalises nothing (Transporter networks)."""
 
     params: object
     obs_norm: ObsNorm
 
 
-def make_evaluate(env, act: Callable, n_rollouts: int) -> Callable:
+def make_evaluate(env, act: Callable, n_rollouts: int,
+                  inputs: Callable | None = None) -> Callable:
     """``evaluate(policy, key, params) -> common.EpisodeOutput``: ``n_rollouts`` episodes of
-    the deterministic policy ``act(policy, feats) -> z`` from starts drawn from ``key``,
-    rewards with ``params`` (r_gt only for the task's default params). The output's
-    per-step fields are means over the rollouts (``finite``: all of them), ``actions`` are
-    those of the first rollout and ``score`` the mean final-step r_gt."""
+    the deterministic policy ``act(policy, inputs(obs, t)) -> z`` from starts drawn from
+    ``key``, rewards with ``params`` (r_gt only for the task's default params); ``inputs``
+    defaults to :func:`features`. The output's per-step fields are means over the rollouts
+    (``finite``: all of them), ``actions`` are those of the first rollout and ``score`` the
+    mean final-step r_gt."""
     horizon = env.horizon
+    if inputs is None:
+        def inputs(obs, t):
+            return features(obs, t, horizon)
 
     def one(policy, key, params):
         obs, state = env.reset(key, params)
 
         def body(carry, _):
             obs, state = carry
-            z = act(policy, features(obs, state.t, horizon))
+            z = act(policy, inputs(obs, state.t))
             action = common.to_action(env, z)
             obs, state, reward, _, info = env.step(state, action, params)
             return (obs, state), (action, reward, info["r_gt"], info["distance"],
@@ -223,15 +229,17 @@ def stats_from_metrics(m: UpdateMetrics) -> common.PlanStats:
 
 
 def learner_episode(make_train_fn: Callable, act: Callable, env, config,
-                    n_eval: int) -> Callable:
-    """``episode(key, params) -> LearnOutput``: train from ``fold_in(key, 1)`` with the
-    training reward, then evaluate ``n_eval`` rollouts from ``fold_in(key, 0)`` with
-    ``params``. Pure; the runner jits (and vmaps over seeds) it."""
+                    n_eval: int, evaluate: Callable | None = None) -> Callable:
+    """``episode(key, params, *data) -> LearnOutput``: train from ``fold_in(key, 1)`` with
+    the training reward (and ``data``, e.g. demonstrations, for methods whose ``train``
+    takes them), then evaluate ``n_eval`` rollouts from ``fold_in(key, 0)`` with ``params``
+    (``evaluate``, default :func:`make_evaluate` of ``act``). Pure; the runner jits (and
+    vmaps over seeds) it."""
     train = make_train_fn(env, config)
-    evaluate = make_evaluate(env, act, n_eval)
+    evaluate = make_evaluate(env, act, n_eval) if evaluate is None else evaluate
 
-    def episode(key, params):
-        policy, metrics = train(jax.random.fold_in(key, 1), params)
+    def episode(key, params, *data):
+        policy, metrics = train(jax.random.fold_in(key, 1), params, *data)
         out = evaluate(policy, jax.random.fold_in(key, 0), params)
         out = out._replace(stats=stats_from_metrics(metrics))
         return LearnOutput(out, metrics, policy)

@@ -49,10 +49,11 @@ def policy_meta(method: str, env, config) -> dict:
 
 def save_trained(path, method: str, env, config, policy: rl.Policy, **extra_meta) -> Path:
     """Write ``policy`` (an :class:`rl.Policy` of one seed, NumPy or JAX arrays)."""
-    tree = {"policy": nets.to_tree(policy.params),
-            "obs_norm": {"mean": np.asarray(policy.obs_norm.mean),
-                         "var": np.asarray(policy.obs_norm.var),
-                         "count": np.asarray(policy.obs_norm.count)}}
+    tree = {"policy": nets.to_tree(policy.params)}
+    if policy.obs_norm is not None:
+        tree["obs_norm"] = {"mean": np.asarray(policy.obs_norm.mean),
+                            "var": np.asarray(policy.obs_norm.var),
+                            "count": np.asarray(policy.obs_norm.count)}
     meta = {**policy_meta(method, env, config), **extra_meta}
     return policy_io.save_policy(path, tree, meta)
 
@@ -75,8 +76,9 @@ def load_trained(path, env, method: str | None = None, config=None):
     config = config or _config_from_json(m.config_cls, meta["config"])
     network = _policy_network(m, env, config)
     params = network.from_tree(tree["policy"])
-    on = tree["obs_norm"]
-    norm = rl.ObsNorm(jnp.asarray(on["mean"]), jnp.asarray(on["var"]), jnp.asarray(on["count"]))
+    on = tree.get("obs_norm")
+    norm = None if on is None else rl.ObsNorm(jnp.asarray(on["mean"]), jnp.asarray(on["var"]),
+                                              jnp.asarray(on["count"]))
     return m.learner.make_act(env, config), rl.Policy(params, norm)
 
 

@@ -31,11 +31,15 @@ from .. import registry
 def _steps_per_update(method: str, config, env) -> int:
     if method == "ppo":
         return config.num_envs * config.unroll_length
+    if method == "ild":  # one episode per env and update, in windows
+        return config.num_envs * env.horizon
     return config.num_envs * config.window_for(env)
 
 
 def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None,
-            task_overrides: dict | None = None) -> dict:
+            task_overrides: dict | None = None, data=()) -> dict:
+    """One record (see the module docstring); ``data``: what the method's ``train`` takes
+    after ``(key, params)`` (ILD's demonstration)."""
     env = dax_tasks.make(task, **(task_overrides or {}))
     m = registry.get(method)
     base = m.config("full", task, **(overrides or {}))
@@ -47,9 +51,10 @@ def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None
         cfg = m.config("full", task, **{**(overrides or {}), "total_env_steps": per * updates})
         train = m.learner.make_train(env, cfg)
         fn = jax.jit(train)
-        compiled, compile_s = timed_compile(fn, jax.random.PRNGKey(0), params)
+        compiled, compile_s = timed_compile(fn, jax.random.PRNGKey(0), params, *data)
         times[updates], _ = median_time(
-            lambda c=compiled: jax.block_until_ready(c(jax.random.PRNGKey(0), params)), reps)
+            lambda c=compiled: jax.block_until_ready(c(jax.random.PRNGKey(0), params, *data)),
+            reps)
         record[f"compile_s_{updates}"] = round(compile_s, 3)
         if updates == 1:
             mem = compiled.memory_analysis()
