@@ -38,10 +38,18 @@ def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32
     Domain [0, 1]^3 on grid^3 cells, N uniformly random particles from
     ``numpy.random.default_rng(0).random((N, 3), float32)`` in the cube of side 0.4 at
     (0.30, 0.15, 0.30) in the reference's (x, up, z) order, mapped to (x, z_ref, up) here;
-    initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; slip walls
-    3 cells thick; gravity 9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa; elastic:
-    fixed-corotated with E = 5e3 Pa, nu = 0.2.
+    initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; gravity
+    9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa, tension allowed (J > 1) as in
+    the references; elastic: fixed-corotated with E = 5e3 Pa, nu = 0.2. The references' slip walls constrain the nodes with index < 3 and
+    > grid - 3, which is ``wall_cells = 2`` here (walls at 2 cells from each side: see
+    :mod:`dax_physics.mpm`), so the scene is the same at every grid: at grid 16 the cube's
+    lowest particles (0.15 m) sit above the wall (0.125 m). The scene needs a grid of at
+    least 14 cells (0.15 m >= 2 / grid).
     """
+    if grid < 14:
+        raise ValueError(f"the block-drop scene needs a grid of at least 14 cells (its cube "
+                         f"starts 0.15 m above the floor, the wall is 2 cells thick), got "
+                         f"{grid}")
     rng = np.random.default_rng(0)
     lo = np.array([0.30, 0.15, 0.30], np.float32)
     x_ref = (lo + np.float32(0.4) * rng.random((particles, 3), dtype=np.float32)).astype(
@@ -55,7 +63,8 @@ def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32
     else:
         raise ValueError(f"unknown block material {material!r}; valid: fluid, elastic")
     cfg = mpm.MPMConfig(materials=(mat,), dx=1.0 / grid, dt=1e-4, domain=(grid,) * 3,
-                        gravity=(0.0, 0.0, -9.8), walls="slip", wall_cells=3, max_speed=2.0)
+                        gravity=(0.0, 0.0, -9.8), walls="slip", wall_cells=2, max_speed=2.0,
+                        fluid_tension=True)
     state = mpm.init_state(cfg, x, v, vol=0.4 ** 3 / particles, dtype=dtype)
     return cfg, state
 
