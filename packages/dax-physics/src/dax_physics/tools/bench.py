@@ -40,11 +40,11 @@ def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32
     (0.30, 0.15, 0.30) in the reference's (x, up, z) order, mapped to (x, z_ref, up) here;
     initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; gravity
     9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa, tension allowed (J > 1) as in
-    the references; elastic: fixed-corotated with E = 5e3 Pa, nu = 0.2. The references' slip walls constrain the nodes with index < 3 and
-    > grid - 3, which is ``wall_cells = 2`` here (walls at 2 cells from each side: see
-    :mod:`dax_physics.mpm`), so the scene is the same at every grid: at grid 16 the cube's
-    lowest particles (0.15 m) sit above the wall (0.125 m). The scene needs a grid of at
-    least 14 cells (0.15 m >= 2 / grid).
+    the references; elastic: fixed-corotated with E = 5e3 Pa, nu = 0.2. The references'
+    slip walls constrain the nodes with index < 3 and > grid - 3, which is ``wall_cells =
+    2`` here (walls 2 cells from each side: see :mod:`dax_physics.mpm`), so the scene is
+    the same at every grid: at grid 16 the cube's lowest particles (0.15 m) sit above the
+    wall (0.125 m). The scene needs a grid of at least 14 cells (0.15 m >= 2 / grid).
     """
     if grid < 14:
         raise ValueError(f"the block-drop scene needs a grid of at least 14 cells (its cube "
