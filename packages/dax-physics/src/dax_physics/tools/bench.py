@@ -200,61 +200,18 @@ def cmd_active_region(args):
 
 # --------------------------------------------------------------------------- speed vs accuracy
 
-def bar_mode_scene(cells_per_length: int, ppc: int, dt_fraction: float, length=0.2,
-                   youngs=1.0e5, density=1000.0, v0=0.05):
-    """A free-free elastic bar (nu = 0, so the 1D wave speed sqrt(E/rho) is exact) started in
-    its first longitudinal mode, v(x) = v0 cos(pi x / L): the end velocity reverses after a
-    quarter period T/4 = L / (2 c)."""
-    dx = length / cells_per_length
-    width = max(2 * dx, length / 8)
-    margin = 6 * dx
-    lo = np.array([margin, margin, margin])
-    x, vol = sampling.box(lo, lo + [length, width, width], dx, ppc=ppc, seed=0, jitter=0.0)
-    mat = Material("elastic", density, youngs_modulus=youngs, poisson_ratio=0.0)
-    dom = int(np.ceil((length + 2 * margin) / dx)) + 1
-    domw = int(np.ceil((width + 2 * margin) / dx)) + 1
-    probe = mpm.MPMConfig(materials=(mat,), dx=dx, dt=1e-9, domain=(dom, domw, domw),
-                          gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
-    dt = dt_fraction * mpm.max_stable_dt(probe)
-    cfg = mpm.MPMConfig(materials=(mat,), dx=dx, dt=dt, domain=(dom, domw, domw),
-                        gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
-    v = np.zeros_like(x)
-    v[:, 0] = v0 * np.cos(np.pi * (x[:, 0] - margin) / length)
-    state = mpm.init_state(cfg, x, v, vol=vol)
-    end = x[:, 0] < margin + 0.1 * length
-    c = np.sqrt(youngs / density)
-    return cfg, state, jnp.asarray(end), length / (2 * c), c
-
-
 def measure_bar(cells: int, ppc: int, dt_fraction: float):
-    cfg, state, end, t_quarter, c = bar_mode_scene(cells, ppc, dt_fraction)
-    n = int(np.ceil(1.6 * t_quarter / cfg.dt))
-    params = cfg.params
+    """The validation suite's free-free bar (:func:`dax_physics.validate.solid.bar_mode`):
+    its first longitudinal mode's quarter period against the exact wave speed."""
+    from ..validate.solid import bar_mode
 
-    @jax.jit
-    def run(s):
-        def body(s, _):
-            s = mpm.step(cfg, params, s)
-            return s, jnp.sum(jnp.where(end, s.v[:, 0], 0.0)) / jnp.sum(end)
-        return jax.lax.scan(body, s, None, length=n)[1]
-
-    t0 = time.perf_counter()
-    vel = np.asarray(run(state))
-    wall_first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    vel = np.asarray(run(state))
-    wall = time.perf_counter() - t0
-    k = int(np.argmax(vel < 0.0))
-    if vel[k] >= 0.0:
-        return dict(cells=cells, ppc=ppc, dt_fraction=dt_fraction, error=None, wall_s=wall)
-    # linear interpolation of the zero crossing between substeps k-1 and k
-    frac = vel[k - 1] / (vel[k - 1] - vel[k])
-    t_cross = (k + frac) * cfg.dt  # vel[i] is after substep i+1
-    c_meas = (c * t_quarter) / t_cross
-    return dict(cells=cells, ppc=ppc, dt=cfg.dt, dt_fraction=dt_fraction,
-                particles=int(state.x.shape[0]), substeps=n, wall_s=wall,
-                compile_and_first_run_s=wall_first, wave_speed=float(c_meas),
-                wave_speed_exact=float(c), error=float(abs(c_meas - c) / c))
+    r = bar_mode(cells, ppc=ppc, dt_fraction=dt_fraction)
+    c, exact = r["wave_speed"], r["wave_speed_exact"]
+    ok = bool(np.isfinite(c))
+    return dict(cells=cells, ppc=ppc, dt=r["dt"], dt_fraction=dt_fraction,
+                particles=r["particles"], substeps=r["substeps"], wall_s=r["wall_s"],
+                wave_speed=float(c) if ok else None, wave_speed_exact=exact,
+                error=float(abs(c - exact) / exact) if ok else None)
 
 
 def cmd_mpm_study(args):

@@ -108,7 +108,7 @@ def check_cantilever(level="default"):
     Materials; shear coefficient of Cowper 1966): the mean over the first period of the
     oscillation that follows the release. Expected first order (the clamp face and the
     free end are resolved to O(dx))."""
-    sweep = (2, 4) if level == "quick" else (2, 4, 6)
+    sweep = (2, 4) if level == "quick" else (2, 3, 4)
     points = []
     for cells in sweep:
         r = cantilever(cells, periods=2)
@@ -207,7 +207,7 @@ def check_bar_wave_speed(level="default"):
     return Result(
         name="bar_wave_speed", solver="MPM elastic", reference="c = sqrt(E/rho) (1-D bar)",
         quantity="c_sim / c - 1", resolution_label="cells along the bar", default=16,
-        points=points, tolerance=0.02, expected_order=2.0,
+        points=points, tolerance=0.03, expected_order=2.0,
         pareto_note=on_front_note(points, 16, "Push-Rope's 24 cm rope is 24 cells long "
                                   "(nearest: 16)"))
 
@@ -298,7 +298,7 @@ def check_poisson(level="default"):
     stress): -eps_lateral / eps_axial = nu (Hooke's law; logarithmic strains of the
     particles' spread, time-averaged over the hold). Homogeneous, so any resolution
     should get it: no convergence order expected."""
-    sweep = (4, 8) if level == "quick" else (4, 8, 12)
+    sweep = (4, 8) if level == "quick" else (4, 6, 8)
     points = []
     nu = POISSON_SOLID.poisson_ratio
     for cells in sweep:
@@ -324,7 +324,7 @@ def check_plastic_yield(level="default"):
     and after unloading the cube keeps the permanent set eps_max - sigma_y / E (logarithmic
     strains). Error: |plateau / sigma_y - 1|; the permanent set's error is a condition
     (within 10 % of the expected set)."""
-    sweep = (4, 8) if level == "quick" else (4, 8, 12)
+    sweep = (4, 8) if level == "quick" else (4, 6, 8)
     mat = DOUGH
     eps_y = mat.yield_stress / mat.youngs_modulus
     points = []
@@ -411,7 +411,7 @@ def check_rope_pendulum(level="default"):
     d)) with I_p and d of the sampled particles about the pivot, plus the finite-amplitude
     term theta0^2 / 16 (Landau & Lifshitz, Mechanics, sec. 11). Expected first order (the
     pivot is one grid node: its position is known to O(dx))."""
-    sweep = (8, 16) if level == "quick" else (8, 16, 24)
+    sweep = (8, 16) if level == "quick" else (8, 12, 16)
     points = []
     for cells in sweep:
         r = rope_pendulum(cells)

@@ -121,8 +121,10 @@ def check_gradient_task_push_rope(level="default"):
 
 def check_gradient_task_pour_water(level="default"):
     """Pour-Water (MPM pour: water in a held bowl): one 30-substep step's reward against
-    float64 central differences."""
-    return _check("pour_water", "MPM pour")
+    float64 central differences, at 0.8 x the expert's first action (the expert asks for
+    vx = 0.4 m/s, exactly the bound: there the clip's kink makes autodiff and central
+    differences differ by 15 %, which is the clip, not the physics)."""
+    return _check("pour_water", "MPM pour", action_scale=0.8)
 
 
 def check_gradient_task_whip_rope(level="default"):
