@@ -2,7 +2,8 @@
 
 `nox` runs the default sessions (lint, each package alone, the combinations, the
 cross-package tests); `nox -s demo` runs the main job, the benchmark runner on a small
-default; `nox -s physics-demo` the physics demo; `nox -l` lists them all.
+default; `nox -s physics-demo` the physics demo; `nox -s validate` the physics validation
+suite; `nox -l` lists them all.
 Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
 
 Each package session installs only that package and the siblings it declares, so a
@@ -189,6 +190,18 @@ def demo(session: nox.Session) -> None:
     bench_out/results.csv, results.md and a chart per task."""
     _install_local(session, LAYERS)
     session.run("dax-bench", "run", *(session.posargs or DEMO_ARGS), env=PYTEST_ENV)
+
+
+@nox.session
+def validate(session: nox.Session) -> None:
+    """The validation suite (not a default session; under 10 minutes on 2 cores): every
+    solver against analytic answers and Martin & Moyce's measurements, with convergence
+    charts, and the task-gradient rows dax-tasks plugs in; writes validation_out/
+    (validation.json, validation.md, one chart per check) and fails if a check fails.
+    Arguments after `--` go to `python -m dax_physics.validate`, e.g. `-- --quick`."""
+    _install_local(session, ["dax-physics", "dax-tasks"], extras={"dax-physics": "plot"})
+    args = session.posargs or ["--out", "validation_out"]
+    session.run("python", "-m", "dax_physics.validate", *args, env=PYTEST_ENV)
 
 
 @nox.session(name="physics-demo")

@@ -51,6 +51,11 @@ Usage (from anywhere)::
     python benchmarks/side_by_side.py                     # all scenes, 3 rounds
     python benchmarks/side_by_side.py --scenes fluid32,cloth --reps 5 --out bench_out/sbs.json
 
+Before/after a change of DaX: ``--dax-baseline-python PY`` adds the engine ``dax-baseline``,
+DaX's benchmark run by another interpreter (e.g. a wrapper that puts an older checkout's
+``packages/dax-physics/src`` first on ``PYTHONPATH``), interleaved with the others; its
+ratio is reported like a peer's (``ratio_dax_over_peer["dax-baseline"]`` = after / before).
+
 Only the final JSON object goes to stdout; progress goes to stderr. A failing command
 (e.g. DaX's bench not being available) is recorded under ``errors`` for its scene and
 engine, and the run continues. Standard library only.
@@ -341,6 +346,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="seconds to sample idle CPUs before each command, to flag a busy machine "
         "(default %(default)s; 0 disables)",
     )
+    ap.add_argument(
+        "--dax-baseline-python",
+        default=None,
+        help="also run DaX's benchmark with this interpreter as the engine 'dax-baseline' "
+        "(e.g. a wrapper putting an older checkout first on PYTHONPATH): before/after",
+    )
     ap.add_argument("--no-dax", action="store_true", help="run the peers only")
     ap.add_argument("--no-check", action="store_true", help="skip the agreement runs")
     ap.add_argument(
@@ -378,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
     root = repo_root()
     peers_dir = resolve_peers_dir(args.peers_dir, root)
     engines = ([] if args.no_dax else ["dax"]) + list(args.peer_list)
+    if args.dax_baseline_python:
+        engines.append("dax-baseline")
 
     tmp = Path(tempfile.mkdtemp(prefix="dax_side_by_side_"))
     peers_out = Path(args.peers_out).resolve() if args.peers_out else tmp / "peers_out"
@@ -396,9 +409,10 @@ def main(argv: list[str] | None = None) -> int:
     def run(scene_name: str, engine: str, phase: str, rnd: int) -> None:
         scene = SCENES[scene_name]
         slot = results[scene_name][engine]
-        if engine == "dax":
+        if engine in ("dax", "dax-baseline"):
             steps = scene["check_steps"] if phase == "check" else scene["bench_steps"]
-            cmd = dax_cmd(args.dax_python, scene, steps)
+            py = args.dax_python if engine == "dax" else args.dax_baseline_python
+            cmd = dax_cmd(py, scene, steps)
             prefix, cwd, env = "{", root, dax_env
         else:
             if peers_dir is None:
@@ -498,6 +512,7 @@ def main(argv: list[str] | None = None) -> int:
             peers_dir=str(peers_dir) if peers_dir else f"NOT FOUND: {args.peers_dir}",
             peers_python=args.peers_python,
             dax_python=args.dax_python,
+            dax_baseline_python=args.dax_baseline_python,
             dax_jax_compilation_cache="kept" if args.keep_jax_cache else "removed (cold)",
             peers_out=str(peers_out) if args.peers_out else None,
             notes=[
@@ -561,16 +576,16 @@ def scene_summary(name: str, res: dict[str, dict], engines: list[str]) -> dict:
             pos[e] = None
             continue
         if scene["kind"] == "mpm":
-            if e == "dax":
+            if e in ("dax", "dax-baseline"):
                 zup = _num_list(rec.get("mean_position"), 3)
-                agree["dax_mean_position_zup"] = zup
+                agree[f"{e.replace('-', '_')}_mean_position_zup"] = zup
                 pos[e] = swap_yz(zup) if zup else None
                 if zup is None:
                     res[e]["errors"].append("check: no usable mean_position [x, y, z]")
             else:
                 pos[e] = _num_list(rec.get("mean_x"), 3)
         else:  # cloth: compare heights only
-            if e == "dax":
+            if e in ("dax", "dax-baseline"):
                 h = rec.get("mean_height")
                 pos[e] = [float(h)] if isinstance(h, (int, float)) else None
                 if pos[e] is None:

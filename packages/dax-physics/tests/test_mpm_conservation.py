@@ -164,10 +164,11 @@ def drop():
 def test_free_fall_matches_half_g_t_squared_before_contact(drop):
     cfg, tr = drop["cfg"], drop["tr"]
     dt, dx = cfg.dt, cfg.dx
-    # The floor acts on a particle once its stencil reaches a wall node: z < (wall + 0.5) dx.
-    free = tr[:, 2] > (cfg.wall_cells + 1.0) * dx
+    # The floor acts on a particle once its stencil reaches a wall node (index <=
+    # wall_cells): z < (wall_cells + 1.5) dx.
+    free = tr[:, 2] > (cfg.wall_cells + 2.0) * dx
     n_free = int(np.argmin(free))  # first substep with contact
-    assert n_free >= 100, f"only {n_free} substeps of free fall: scene too short"
+    assert n_free >= 80, f"only {n_free} substeps of free fall: scene too short"
     n = np.arange(1, n_free + 1)
     t = n * dt
     com0 = drop["x0"].mean(axis=0)
@@ -269,10 +270,12 @@ def test_strain_energy_is_consistent_with_the_documented_stress():
         F = A.copy()
         F[4:] = A[4:] @ A[4:].transpose(0, 2, 1)  # plastic slot: b_e, symmetric positive
         J = np.array([0.8, 1.15, 1.0, 1.0, 1.0, 1.0])
-        s = s.replace(F=jnp.asarray(F), J=jnp.asarray(J))
+        eye = jnp.eye(3, dtype=jnp.float64)
+        s = s.replace(H=jnp.asarray(F) - eye, J=jnp.asarray(J))
 
         def psi_total(F, J):
-            return jnp.sum(s.vol * mpm.strain_energy_density(cfg, params, s.replace(F=F, J=J)))
+            return jnp.sum(s.vol * mpm.strain_energy_density(
+                cfg, params, s.replace(H=F - eye, J=J)))
 
         dF, dJ = jax.grad(psi_total, argnums=(0, 1))(s.F, s.J)
         vol = np.asarray(s.vol)

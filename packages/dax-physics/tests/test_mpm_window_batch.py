@@ -156,8 +156,13 @@ def test_mixture_of_fluid_and_elastic_stays_finite_and_conserves_mass(mixture):
     assert m1 == m0, f"total mass changed: {m0!r} -> {m1!r} kg"
     x0, x1 = np.asarray(s0.x), np.asarray(s.x)
     cube = mat == 1
-    sink = float(x0[cube, 2].mean() - x1[cube, 2].mean())
-    assert sink > cfg.dx, f"the cube did not enter the water (moved down {sink:.3f} m)"
+    # The cube starts a cell above the pool and ends partly in it: its lowest particle below
+    # the water's surface. (It used to sink more than a cell, while the pool sank a cell
+    # into the slip walls' band: see dax_physics.mpm, walls.)
+    bottom, surface = float(x1[cube, 2].min()), float(x1[~cube, 2].max())
+    assert bottom < surface - 0.1 * cfg.dx, (
+        f"the cube did not enter the water: its bottom at {bottom:.4f} m, the water's "
+        f"surface at {surface:.4f} m")
     extent0 = np.ptp(x0[cube], axis=0)
     extent1 = np.ptp(x1[cube], axis=0)
     assert np.all(extent1 < 1.5 * extent0), (

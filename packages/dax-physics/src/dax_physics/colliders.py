@@ -154,8 +154,14 @@ def _hypot(*c):
 
 
 def _outside_inside(d):
-    """Exact SDF from per-axis distances ``d`` (tuple of arrays) of a convex slab set."""
-    outside = _hypot(*(jnp.maximum(di, 0.0) for di in d))
+    """Exact SDF from per-axis distances ``d`` (tuple of arrays) of a convex slab set.
+
+    The outside distance is ``hypot(...) - sqrt(eps)``: the ``eps`` that keeps the
+    gradient finite at the surface must not lift the distance there. (It used to: a point
+    on a face a rounding error outside got the distance sqrt(eps) = 1e-6 m, equal to
+    :data:`SURFACE_TOL`, so it missed the surface; in float64 a sticky box clamping a
+    cantilever lost its face nodes and the beam was one cell longer.)"""
+    outside = _hypot(*(jnp.maximum(di, 0.0) for di in d)) - math.sqrt(_EPS)
     inside_all = functools.reduce(jnp.logical_and, [di <= 0.0 for di in d])
     outside = jnp.where(inside_all, 0.0, outside)
     return outside + jnp.minimum(functools.reduce(jnp.maximum, d), 0.0)

@@ -21,10 +21,30 @@ its stencil is clamped into the window and the state's ``escaped`` flag is raise
 :func:`check_state` turns into an error. Results of a windowed run equal the full-grid run
 whenever the flag stays down.
 
-**Walls.** The domain boundary carries walls ``wall_cells`` thick (grid nodes with global
-index ``< wall_cells`` or ``> domain - wall_cells``, as in the usual MPM reference
-scenes): ``"slip"`` removes the velocity component into the wall, ``"sticky"`` zeroes it,
-``"none"`` disables them.
+**Walls.** The domain boundary carries walls ``wall_cells`` thick: their surfaces are the
+planes ``wall_cells * dx`` and ``(domain - wall_cells) * dx`` of each axis, and the grid
+nodes on or beyond a surface (global index ``<= wall_cells`` or ``>= domain -
+wall_cells``) are constrained: ``"slip"`` removes the velocity component into the wall,
+``"sticky"`` zeroes it, ``"none"`` disables them. Material comes to rest *on* the surface
+(checked by the validation suite, :mod:`dax_physics.validate`), and :func:`init_state`
+accepts particles between the surfaces. (Before 0.3.0 the nodes with index ``<
+wall_cells`` were constrained, as in the Taichi and Warp reference scenes: material then
+rested about a cell below the documented surface, an O(dx) error in every length measured
+from the wall. The reference scenes' band of ``b`` cells is ``wall_cells = b - 1`` here.)
+
+**Deformation in float32.** The state stores the displacement gradient ``H = F - I``
+(``b_e - I`` for plastic particles), not ``F``, and updates it as ``H <- H + dt C (I +
+H)``. A substep changes F by about 1e-5; added to O(1) entries of ``F`` in float32 the
+increments kept two digits, and the rounding of ``1 + d`` is biased (the spacing of
+float32 numbers halves below 1), so an elastic solid under a steady load crept. Stored as
+``H`` the increments keep their precision; ``MPMState.F`` returns ``I + H``.
+
+**Fluids carry no tension.** A fluid particle's volume ratio is capped at ``J <= 1``: a
+weakly compressible liquid pushes but does not pull, and liquid that spreads or separates
+is a free surface at zero pressure (``MPMConfig(fluid_tension=True)`` lifts the cap, as
+in the Taichi and Warp reference scenes). Without the cap the stretched particles' negative
+pressure held a collapsing water column together (its height at the wall came out 5 % too
+high against Martin & Moyce's measurements at 16 cells across; 1.9 % with the cap).
 """
 
 from __future__ import annotations
@@ -76,10 +96,14 @@ class MPMConfig:
     window: active-region grid size in cells; ``None`` means the whole domain.
     gravity: acceleration [m/s^2].
     walls: ``"slip"``, ``"sticky"`` or ``"none"`` at the domain boundary.
-    wall_cells: wall thickness in cells.
+    wall_cells: wall thickness in cells: the wall surfaces are ``wall_cells * dx`` from each
+        side of the domain (see the module docstring).
     colliders: tuple of :class:`~dax_physics.colliders.ColliderSpec`.
     max_speed: the largest particle or collider speed [m/s] the scene is expected to
         reach; enters the CFL part of the stability bound.
+    fluid_tension: let fluid particles stretch past J = 1 (negative pressure), as the
+        Taichi and Warp reference scenes do; the default ``False`` caps J at 1 (see the
+        module docstring).
     """
 
     materials: tuple
@@ -92,6 +116,7 @@ class MPMConfig:
     wall_cells: int = 3
     colliders: tuple = ()
     max_speed: float = 0.0
+    fluid_tension: bool = False
 
     def __post_init__(self):
         mats = tuple(self.materials)
@@ -191,8 +216,10 @@ class MPMState:
 
     x: positions [m] (N, 3).  v: velocities [m/s] (N, 3).
     C: APIC affine velocity matrix [1/s] (N, 3, 3).
-    F: deformation gradient (N, 3, 3); for ``plastic`` particles the elastic left
-       Cauchy-Green tensor b_e.  J: volume ratio (N,), tracked for fluids.
+    H: displacement gradient ``F - I`` (N, 3, 3); for ``plastic`` particles ``b_e - I``
+       with b_e the elastic left Cauchy-Green tensor (stored relative to the identity so
+       float32 keeps the increments; see the module docstring).  :attr:`F` is ``I + H``.
+    J: volume ratio (N,), tracked for fluids (capped at 1: no tension).
     vol: rest volume [m^3] (N,).  mat: material id (N,) int32.
     held: index of the collider holding the particle, -1 if free (N,) int32.
     held_offset: the held particle's position in its collider's frame [m] (N, 3).
@@ -205,7 +232,7 @@ class MPMState:
     x: jnp.ndarray
     v: jnp.ndarray
     C: jnp.ndarray
-    F: jnp.ndarray
+    H: jnp.ndarray
     J: jnp.ndarray
     vol: jnp.ndarray
     mat: jnp.ndarray
@@ -221,12 +248,20 @@ class MPMState:
     def n_particles(self) -> int:
         return self.x.shape[-2]
 
+    @property
+    def F(self):
+        """The deformation gradient ``I + H`` (N, 3, 3) (``b_e`` for plastic particles);
+        read-only: build a state with ``replace(H=F - I)``."""
+        return self.H + jnp.eye(3, dtype=self.H.dtype)
+
 
 def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
                dtype=jnp.float32) -> MPMState:
     """Build a validated initial state.
 
-    x: positions (N, 3) [m] inside the domain (away from the walls).
+    x: positions (N, 3) [m] inside the domain: between the wall surfaces (``wall_cells *
+        dx`` to ``(domain - wall_cells) * dx`` per axis) or, without walls, where every
+        particle's stencil fits the grid (1 cell to ``domain - 2`` cells).
     v: velocities (N, 3) [m/s], default zero.
     mat: material ids (N,), default 0.
     vol: rest volume per particle [m^3], scalar or (N,); default ``dx^3 / 8`` (8 particles
@@ -270,8 +305,9 @@ def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
     if not np.all(vol > 0):
         raise ValueError("particle volumes must be > 0 m^3")
     # Grid nodes sit at 0 .. n - 1 cells, so a particle's B-spline stencil fits in the grid
-    # only for 0.5 <= x / dx < n - 1.5. Keep particles at least half a cell inside that (and
-    # out of the walls). The upper bound used to be n - 1 cells without walls, which
+    # only for 0.5 <= x / dx < n - 1.5. Keep particles at least half a cell inside that, and
+    # between the wall surfaces (wall_cells and domain - wall_cells cells, where the walls'
+    # constrained nodes start). The upper bound used to be n - 1 cells without walls, which
     # accepted particles whose stencil was already outside the grid (flagged as escaped on
     # the first substep).
     walls = cfg.wall_cells if cfg.walls != "none" else 0
@@ -289,10 +325,9 @@ def init_state(cfg: MPMConfig, x, v=None, mat=None, vol=None, colliders=None,
     if colliders.pos.shape[0] != len(cfg.colliders):
         raise ValueError(f"collider state has {colliders.pos.shape[0]} rows but the config "
                          f"declares {len(cfg.colliders)} colliders")
-    eye = np.broadcast_to(np.eye(3), (n, 3, 3))
     state = MPMState(
         x=jnp.asarray(x, dtype), v=jnp.asarray(v, dtype),
-        C=jnp.zeros((n, 3, 3), dtype), F=jnp.asarray(eye, dtype), J=jnp.ones((n,), dtype),
+        C=jnp.zeros((n, 3, 3), dtype), H=jnp.zeros((n, 3, 3), dtype), J=jnp.ones((n,), dtype),
         vol=jnp.asarray(vol, dtype), mat=jnp.asarray(mat, jnp.int32),
         held=jnp.full((n,), -1, jnp.int32), held_offset=jnp.zeros((n, 3), dtype),
         colliders=colliders, origin=jnp.zeros((3,), jnp.int32),
@@ -353,6 +388,20 @@ def _transpose(A):
     return [[A[j][i] for j in range(3)] for i in range(3)]
 
 
+def _plus_identity(H):
+    """``I + H`` (component lists)."""
+    return [[H[i][j] + 1.0 if i == j else H[i][j] for j in range(3)] for i in range(3)]
+
+
+def _det_minus_one(H):
+    """``det(I + H) - 1`` without cancellation: ``tr H + i2(H) + det H`` (``i2`` the sum of
+    the principal 2x2 minors), accurate in float32 when H is small."""
+    tr = H[0][0] + H[1][1] + H[2][2]
+    i2 = (H[0][0] * H[1][1] - H[0][1] * H[1][0] + H[0][0] * H[2][2] - H[0][2] * H[2][0]
+          + H[1][1] * H[2][2] - H[1][2] * H[2][1])
+    return tr + i2 + _det(H)
+
+
 def _det(A):
     return (A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1])
             - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0])
@@ -395,8 +444,9 @@ def _window_origin(cfg: MPMConfig, x):
     return jnp.clip(origin, 0, upper).astype(jnp.int32)
 
 
-def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, Fm, Cm):
-    """Kirchhoff stress tau (component lists) per particle, for the kinds in the table."""
+def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, Hm, Cm):
+    """Kirchhoff stress tau (component lists) per particle, for the kinds in the table,
+    from ``Hm`` = F - I (b_e - I for plastic particles) as component lists."""
     kinds = cfg.kinds
     mu = params.mu[state.mat]
     lam = params.lam[state.mat]
@@ -419,23 +469,25 @@ def _kirchhoff_stress(cfg: MPMConfig, params: MaterialParams, state: MPMState, F
              for i in range(3)]
         tau = add(tau, t, None if single else mat_kind == KIND_CODE["fluid"])
     if "elastic" in kinds:
+        Fm = _plus_identity(Hm)
         R = polar_rotation(Fm)
-        J = _det(Fm)
+        Jm1 = _det_minus_one(Hm)
         FmR = [[Fm[i][j] - R[i][j] for j in range(3)] for i in range(3)]
         P = _mul(FmR, _transpose(Fm))
-        vol_term = lam * J * (J - 1.0)
+        vol_term = lam * (1.0 + Jm1) * Jm1
         t = [[2.0 * mu * P[i][j] + (vol_term if i == j else zero) for j in range(3)]
              for i in range(3)]
         tau = add(tau, t, None if single else mat_kind == KIND_CODE["elastic"])
     if "plastic" in kinds:
-        # F slot holds b_e; J from det(b_e) = J^2.
-        b = Fm
-        J2 = jnp.maximum(_det(b), 1e-12)
-        scale = J2 ** (-1.0 / 3.0)
-        tr = (b[0][0] + b[1][1] + b[2][2]) * scale
+        # H slot holds B = b_e - I; J^2 = det(b_e). dev(b_e) = dev(B), so the stress is
+        # computed from B without cancellation.
+        B = Hm
+        J2m1 = _det_minus_one(B)
+        scale = jnp.maximum(1.0 + J2m1, 1e-12) ** (-1.0 / 3.0)
+        trB3 = (B[0][0] + B[1][1] + B[2][2]) / 3.0
         kappa = lam + 2.0 / 3.0 * mu
-        t = [[mu * (b[i][j] * scale - (tr / 3.0 if i == j else 0.0))
-              + (0.5 * kappa * (J2 - 1.0) if i == j else zero) for j in range(3)]
+        t = [[mu * scale * (B[i][j] - (trB3 if i == j else 0.0))
+              + (0.5 * kappa * J2m1 if i == j else zero) for j in range(3)]
              for i in range(3)]
         tau = add(tau, t, None if single else mat_kind == KIND_CODE["plastic"])
     return tau
@@ -449,26 +501,30 @@ def _particle_kinds(cfg: MPMConfig, mat):
     return jnp.asarray([KIND_CODE[m.kind] for m in cfg.materials], jnp.int32)[mat]
 
 
-def _return_map(params: MaterialParams, mat, b):
-    """Von Mises radial return on b_e (component lists): project the deviator of
-    bbar_e = J^{-2/3} b_e onto |mu dev(bbar_e)| <= sqrt(2/3) sigma_y, keeping det."""
+def _return_map(params: MaterialParams, mat, B):
+    """Von Mises radial return on b_e = I + B (component lists of B): project the deviator
+    of bbar_e = J^{-2/3} b_e onto |mu dev(bbar_e)| <= sqrt(2/3) sigma_y, keeping det;
+    returns the new ``b_e - I``. Inside the yield surface B comes back unchanged, bit for
+    bit (the projection's rounding would otherwise accumulate like F's did)."""
     mu = params.mu[mat]
     sy = params.yield_stress[mat]
-    J2 = jnp.maximum(_det(b), 1e-12)
-    scale = J2 ** (-1.0 / 3.0)
-    bbar = [[b[i][j] * scale for j in range(3)] for i in range(3)]
-    tr3 = (bbar[0][0] + bbar[1][1] + bbar[2][2]) / 3.0
-    dev = [[bbar[i][j] - (tr3 if i == j else 0.0) for j in range(3)] for i in range(3)]
+    scale = jnp.maximum(1.0 + _det_minus_one(B), 1e-12) ** (-1.0 / 3.0)
+    trB3 = (B[0][0] + B[1][1] + B[2][2]) / 3.0
+    dev = [[scale * (B[i][j] - (trB3 if i == j else 0.0)) for j in range(3)]
+           for i in range(3)]
+    tr3 = scale * (1.0 + trB3)
     norm = jnp.sqrt(sum(dev[i][j] * dev[i][j] for i in range(3) for j in range(3)) + 1e-20)
     s_norm = mu * norm
     limit = math.sqrt(2.0 / 3.0) * sy
-    factor = jnp.where(s_norm > limit, limit / s_norm, 1.0)
+    yielding = s_norm > limit
+    factor = jnp.where(yielding, limit / s_norm, 1.0)
     new_bbar = [[dev[i][j] * factor + (tr3 if i == j else 0.0) for j in range(3)]
                 for i in range(3)]
     # keep det(bbar) = 1 (isochoric plastic flow) by renormalising the new isochoric part.
     d = jnp.maximum(_det(new_bbar), 1e-12)
     renorm = d ** (-1.0 / 3.0) / scale
-    return [[new_bbar[i][j] * renorm for j in range(3)] for i in range(3)]
+    return [[jnp.where(yielding, new_bbar[i][j] * renorm - (1.0 if i == j else 0.0), B[i][j])
+             for j in range(3)] for i in range(3)]
 
 
 # ----------------------------------------------------------------------------- substep
@@ -500,9 +556,9 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
     w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
 
     Cm = _mat3(state.C)
-    Fm = _mat3(state.F)
+    Hm = _mat3(state.H)
     m = state.vol * params.density[state.mat]
-    tau = _kirchhoff_stress(cfg, params, state, Fm, Cm)
+    tau = _kirchhoff_stress(cfg, params, state, Hm, Cm)
     k_stress = -dt * state.vol * 4.0 * inv_dx * inv_dx
     A = [[k_stress * tau[i][j] + m * Cm[i][j] for j in range(3)] for i in range(3)]
     # momentum at offset o: w_o (m v + A (o - fx) dx) = w_o (b + dx A o), b = m v - dx A fx
@@ -543,8 +599,9 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
     gv = gv + dt * jnp.asarray(cfg.gravity, dtype)
     node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
     if cfg.walls != "none":
-        lo_wall = node < cfg.wall_cells
-        hi_wall = node > jnp.asarray(cfg.domain, jnp.int32) - cfg.wall_cells
+        # nodes on or beyond the wall surfaces (see the module docstring)
+        lo_wall = node <= cfg.wall_cells
+        hi_wall = node >= jnp.asarray(cfg.domain, jnp.int32) - cfg.wall_cells
         if cfg.walls == "sticky":
             gv = jnp.where(jnp.any(lo_wall | hi_wall, axis=1, keepdims=True), 0.0, gv)
         else:
@@ -575,25 +632,35 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
 
     kinds = cfg.kinds
     trC = new_C[0][0] + new_C[1][1] + new_C[2][2]
-    new_J = state.J * (1.0 + dt * trC) if "fluid" in kinds else state.J
+    new_J = state.J
+    if "fluid" in kinds:
+        new_J = state.J * (1.0 + dt * trC)
+        if not cfg.fluid_tension:  # a liquid pushes but does not pull (module docstring)
+            new_J = jnp.minimum(new_J, 1.0)
     if kinds == {"fluid"}:
-        new_F = state.F
+        new_H = state.H
     else:
-        f = [[(1.0 if i == j else 0.0) + dt * new_C[i][j] for j in range(3)] for i in range(3)]
-        Fn = _mul(f, Fm)
+        # F <- (I + D) F with D = dt C, as H <- H + (D + D H): the increment is added to
+        # the small H, not to O(1) entries of F (see the module docstring).
+        D = [[dt * new_C[i][j] for j in range(3)] for i in range(3)]
+        DH = _mul(D, Hm)
+        Hn = [[Hm[i][j] + (D[i][j] + DH[i][j]) for j in range(3)] for i in range(3)]
         if "plastic" in kinds:
             is_pl = _particle_kinds(cfg, state.mat) == KIND_CODE["plastic"]
-            b_trial = _mul(Fn, _transpose(f))  # f b f^T
-            b_new = _return_map(params, state.mat, b_trial)
-            Fn = [[jnp.where(is_pl, b_new[i][j], Fn[i][j]) for j in range(3)]
+            # b_trial = (I + D) b (I + D)^T; with (I + D) b = I + Hn:
+            # b_trial - I = Hn + D^T + Hn D^T
+            HnDt = _mul(Hn, _transpose(D))
+            B_trial = [[Hn[i][j] + (D[j][i] + HnDt[i][j]) for j in range(3)]
+                       for i in range(3)]
+            B_new = _return_map(params, state.mat, B_trial)
+            Hn = [[jnp.where(is_pl, B_new[i][j], Hn[i][j]) for j in range(3)]
                   for i in range(3)]
         if "fluid" in kinds:
             # Fluids use J only; keep their F at identity so a long mixture rollout never
             # polar-decomposes an ill-conditioned, unused F (whose gradient could overflow).
             is_fl = _particle_kinds(cfg, state.mat) == KIND_CODE["fluid"]
-            Fn = [[jnp.where(is_fl, 1.0 if i == j else 0.0, Fn[i][j]) for j in range(3)]
-                  for i in range(3)]
-        new_F = _stack3(Fn)
+            Hn = [[jnp.where(is_fl, 0.0, Hn[i][j]) for j in range(3)] for i in range(3)]
+        new_H = _stack3(Hn)
 
     new_C_arr = _stack3(new_C)
     cstate = col.advance(state.colliders, dt)
@@ -610,7 +677,7 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
 
     finite = state.finite & jnp.all(jnp.isfinite(new_x))
     return state.replace(
-        x=new_x, v=new_v_arr, C=new_C_arr, F=new_F, J=new_J, colliders=cstate,
+        x=new_x, v=new_v_arr, C=new_C_arr, H=new_H, J=new_J, colliders=cstate,
         origin=origin, finite=finite, escaped=state.escaped | escaped, time=state.time + dt)
 
 
@@ -689,18 +756,18 @@ def strain_energy_density(cfg: MPMConfig, params: MaterialParams, state: MPMStat
     for plastic particles."""
     mu = params.mu[state.mat]
     lam = params.lam[state.mat]
-    Fm = _mat3(state.F)
+    Hm = _mat3(state.H)
+    Fm = _plus_identity(Hm)
     R = polar_rotation(Fm)
-    J = _det(Fm)
     fr = sum((Fm[i][j] - R[i][j]) ** 2 for i in range(3) for j in range(3))
-    e_el = mu * fr + 0.5 * lam * (J - 1.0) ** 2
+    e_el = mu * fr + 0.5 * lam * _det_minus_one(Hm) ** 2
     Jf = state.J
     # Kirchhoff pressure tau = K J (J - 1) = J psi'(J)  <=>  psi(J) = K (J - 1)^2 / 2.
     # (This used to be K (J^3/3 - J^2/2 + 1/6), whose psi' = K J (J - 1) is the Kirchhoff
     # stress itself, i.e. the potential of tau = K J^2 (J - 1): off by a factor J.)
     e_fl = 0.5 * lam * (Jf - 1.0) ** 2
-    J2 = jnp.maximum(_det(Fm), 1e-12)
-    tr = (Fm[0][0] + Fm[1][1] + Fm[2][2]) * J2 ** (-1.0 / 3.0)
+    J2 = jnp.maximum(1.0 + _det_minus_one(Hm), 1e-12)
+    tr = (3.0 + Hm[0][0] + Hm[1][1] + Hm[2][2]) * J2 ** (-1.0 / 3.0)
     kappa = lam + 2.0 / 3.0 * mu
     e_pl = 0.5 * mu * (tr - 3.0) + 0.25 * kappa * (J2 - 1.0 - jnp.log(J2))
     kind = _particle_kinds(cfg, state.mat)

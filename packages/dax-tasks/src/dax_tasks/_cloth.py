@@ -41,6 +41,9 @@ class ClothScene:
     unfold: the episode starts folded (``folds`` applied) and the goal is the flat cloth.
     rotation_range [rad], offset_range [m]: initial pose randomisation (rotation about the
         vertical axis through the table centre, then a translation in the table plane).
+    friction_model: the table friction law, ``"coulomb"`` (default: stick-slip) or
+        ``"smooth"`` (a regularised law whose rollouts are smooth in the actions, for
+        gradient-based planners; see :class:`dax_physics.cloth.ClothConfig`).
     """
 
     shape: str = "square"
@@ -56,6 +59,7 @@ class ClothScene:
     unfold: bool = False
     rotation_range: float = 0.1
     offset_range: float = 0.01
+    friction_model: str = "coulomb"
 
     def __post_init__(self):
         if self.shape not in ("square", "tshirt"):
@@ -160,7 +164,8 @@ def cloth_with(base: dc.Cloth, params: ClothParams) -> dc.Cloth:
 def cloth_config(scene: ClothScene) -> dc.ClothConfig:
     m = DEFAULT_MATERIAL
     return dc.ClothConfig(dt=scene.dt, friction_static=m["friction_static"],
-                          friction_dynamic=m["friction_dynamic"], table_height=0.0)
+                          friction_dynamic=m["friction_dynamic"], table_height=0.0,
+                          friction_model=scene.friction_model)
 
 
 @functools.lru_cache(maxsize=32)

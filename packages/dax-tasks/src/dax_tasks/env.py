@@ -302,13 +302,16 @@ class Env:
         """
         params = self.default_params if params is None else params
         spec = self.spec
-        action = jnp.asarray(action, jnp.float32)
+        # the physics' float type (float32; float64 for a state cast to it, so a float64
+        # gradient check sees the action it asks for, not its float32 rounding)
+        dtype = state.physics.x.dtype
+        action = jnp.asarray(action, dtype)
         if action.shape != (spec.action_dim,):
             raise ValueError(f"{spec.name}: expected a {spec.action_kind} action of shape "
                              f"({spec.action_dim},), got {action.shape}")
         finite_action = jnp.all(jnp.isfinite(action))
-        action = jnp.clip(action, jnp.asarray(spec.action_low, jnp.float32),
-                          jnp.asarray(spec.action_high, jnp.float32))
+        action = jnp.clip(action, jnp.asarray(spec.action_low, dtype),
+                          jnp.asarray(spec.action_high, dtype))
         physics = self.apply_action(state.physics, action, params)
         pts = self.object_points(physics)
         dist = self.distance(physics, params.goal)

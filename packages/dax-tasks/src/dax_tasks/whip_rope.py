@@ -47,8 +47,9 @@ lay the end down (2, -2, -2) cm over steps 52-61; then the rope settles. Peak sp
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
 and the goal's; λ = 7 /m: ``r_gt = exp(-7 D)`` is 0.85 at D = 2.3 cm and 0.5 at
-D = 10 cm. Seeds 0-3: the scripted expert ends at r_gt 0.85-0.93 (D 1-2.4 cm), doing
-nothing at 0.56-0.64 (D 6.4-8.4 cm).
+D = 10 cm. Seeds 0-3: the scripted expert ends at r_gt 0.79-0.92 (dax-physics 0.3; 0.85-0.93
+with 0.2), doing nothing at 0.56-0.64 (D 6.4-8.4 cm); seeds 0-19: expert 0.836 +- 0.018,
+random 0.654 +- 0.025.
 
 Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
 canonical throw's velocity at step t plus a feedback term that steers the gripper onto the

@@ -28,6 +28,8 @@ from ..scan import checkpointed_scan
 from . import mesh as _mesh
 
 _TINY = 1e-20
+#: Table friction laws (:attr:`ClothConfig.friction_model`).
+FRICTION_MODELS = ("coulomb", "smooth")
 
 
 # ----------------------------------------------------------------------------- static config
@@ -42,6 +44,9 @@ class ClothConfig:
     table_height: height of the table plane [m]; ``None`` for no table.
     friction_static, friction_dynamic: Coulomb coefficients [-] of cloth on the table
         (``friction_dynamic=None`` means equal to the static one).
+    friction_model: ``"coulomb"`` (default): stick while ``|v_t| <= mu_s dv_n``, else
+        ``|v_t| -= mu_d dv_n``; ``"smooth"``: ``|v_t| <- |v_t|^2 / (|v_t| + mu_d dv_n)``,
+        a regularised Coulomb law for gradient-based planning (see :func:`_table_contact`).
     thickness: self-collision thickness h [m]; vertices closer than h repel. 0 disables
         self-collision.
     self_stiffness: repulsion stiffness [N/m] of a vertex pair closer than h.
@@ -74,6 +79,7 @@ class ClothConfig:
     strain_limit: float | None = None
     strain_iterations: int = 4
     colliders: tuple = ()
+    friction_model: str = "coulomb"
 
     def __post_init__(self):
         object.__setattr__(self, "gravity", tuple(float(g) for g in self.gravity))
@@ -91,6 +97,9 @@ class ClothConfig:
             raise ValueError(f"self_candidates must be >= 1, got {self.self_candidates}")
         if self.strain_limit is not None and not self.strain_limit > 0:
             raise ValueError(f"strain_limit must be > 0 or None, got {self.strain_limit}")
+        if self.friction_model not in FRICTION_MODELS:
+            raise ValueError(f"unknown friction_model {self.friction_model!r}; valid: "
+                             f"{', '.join(FRICTION_MODELS)}")
 
     @property
     def mu_dynamic(self) -> float:
@@ -387,7 +396,18 @@ def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v):
 
 def _table_contact(cfg: ClothConfig, x, v, free, friction=None):
     """Table plane with Coulomb friction (``friction`` (2,) as data, else the config's);
-    returns (x_new, v_new)."""
+    returns (x_new, v_new).
+
+    ``friction_model="coulomb"``: a vertex sticks while ``|v_t| <= mu_s dv_n`` (dv_n the
+    normal velocity the contact removes), else slides with ``|v_t| - mu_d dv_n``. The
+    switch makes the rollout non-smooth: a finite difference of a fold's reward changes
+    erratically with its step (stick-slip), so the exact local slope says little about
+    the reward a step away. ``"smooth"`` replaces it with ``|v_t| <- |v_t|^2 / (|v_t| + mu_d
+    dv_n)``: the friction impulse ``|v_t| a / (|v_t| + a)`` (a = mu_d dv_n) never exceeds
+    Coulomb's bound a, equals it for fast sliding (``|v_t| >> a``) and nearly stops slow
+    sliding (``|v_t|^2 / a``), with no static coefficient and no switch. It is smooth in
+    the velocities, so gradients match finite differences, at the price of a cloth that
+    creeps slowly where Coulomb would hold it."""
     zt = cfg.table_height
     x_pred = x + cfg.dt * v
     contact = (x_pred[:, 2] < zt) & free
@@ -399,8 +419,13 @@ def _table_contact(cfg: ClothConfig, x, v, free, friction=None):
         dvn = jnp.where(contact, jnp.maximum(-v[:, 2], 0.0), 0.0)  # normal impulse / mass
         vt = v[:, :2]
         vtn = _safe_norm(vt)
-        stick = vtn <= mu_s * dvn
-        scale = jnp.where(stick, 0.0, jnp.maximum(1.0 - mu_d * dvn / vtn, 0.0))
+        if cfg.friction_model == "smooth":
+            # the bound of resting contact: the weight's normal impulse g dt per substep
+            g_dt = cfg.dt * float(np.linalg.norm(cfg.gravity))
+            scale = vtn / (vtn + mu_d * jnp.minimum(dvn, g_dt))
+        else:
+            stick = vtn <= mu_s * dvn
+            scale = jnp.where(stick, 0.0, jnp.maximum(1.0 - mu_d * dvn / vtn, 0.0))
         vt = jnp.where(contact[:, None], vt * scale[:, None], vt)
         v = jnp.concatenate([vt, v[:, 2:]], axis=1)
         x_pred = x + cfg.dt * v

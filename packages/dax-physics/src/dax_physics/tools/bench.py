@@ -38,10 +38,18 @@ def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32
     Domain [0, 1]^3 on grid^3 cells, N uniformly random particles from
     ``numpy.random.default_rng(0).random((N, 3), float32)`` in the cube of side 0.4 at
     (0.30, 0.15, 0.30) in the reference's (x, up, z) order, mapped to (x, z_ref, up) here;
-    initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; slip walls
-    3 cells thick; gravity 9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa; elastic:
-    fixed-corotated with E = 5e3 Pa, nu = 0.2.
+    initial velocity 2 m/s down; dt 1e-4 s; rho 1; particle volume 0.4^3 / N; gravity
+    9.8 m/s^2. Fluid: tau = K J (J - 1) I with K = 400 Pa, tension allowed (J > 1) as in
+    the references; elastic: fixed-corotated with E = 5e3 Pa, nu = 0.2. The references'
+    slip walls constrain the nodes with index < 3 and > grid - 3, which is ``wall_cells =
+    2`` here (walls 2 cells from each side: see :mod:`dax_physics.mpm`), so the scene is
+    the same at every grid: at grid 16 the cube's lowest particles (0.15 m) sit above the
+    wall (0.125 m). The scene needs a grid of at least 14 cells (0.15 m >= 2 / grid).
     """
+    if grid < 14:
+        raise ValueError(f"the block-drop scene needs a grid of at least 14 cells (its cube "
+                         f"starts 0.15 m above the floor, the wall is 2 cells thick), got "
+                         f"{grid}")
     rng = np.random.default_rng(0)
     lo = np.array([0.30, 0.15, 0.30], np.float32)
     x_ref = (lo + np.float32(0.4) * rng.random((particles, 3), dtype=np.float32)).astype(
@@ -55,7 +63,8 @@ def block_drop_scene(material: str, grid: int, particles: int, dtype=jnp.float32
     else:
         raise ValueError(f"unknown block material {material!r}; valid: fluid, elastic")
     cfg = mpm.MPMConfig(materials=(mat,), dx=1.0 / grid, dt=1e-4, domain=(grid,) * 3,
-                        gravity=(0.0, 0.0, -9.8), walls="slip", wall_cells=3, max_speed=2.0)
+                        gravity=(0.0, 0.0, -9.8), walls="slip", wall_cells=2, max_speed=2.0,
+                        fluid_tension=True)
     state = mpm.init_state(cfg, x, v, vol=0.4 ** 3 / particles, dtype=dtype)
     return cfg, state
 
@@ -191,61 +200,18 @@ def cmd_active_region(args):
 
 # --------------------------------------------------------------------------- speed vs accuracy
 
-def bar_mode_scene(cells_per_length: int, ppc: int, dt_fraction: float, length=0.2,
-                   youngs=1.0e5, density=1000.0, v0=0.05):
-    """A free-free elastic bar (nu = 0, so the 1D wave speed sqrt(E/rho) is exact) started in
-    its first longitudinal mode, v(x) = v0 cos(pi x / L): the end velocity reverses after a
-    quarter period T/4 = L / (2 c)."""
-    dx = length / cells_per_length
-    width = max(2 * dx, length / 8)
-    margin = 6 * dx
-    lo = np.array([margin, margin, margin])
-    x, vol = sampling.box(lo, lo + [length, width, width], dx, ppc=ppc, seed=0, jitter=0.0)
-    mat = Material("elastic", density, youngs_modulus=youngs, poisson_ratio=0.0)
-    dom = int(np.ceil((length + 2 * margin) / dx)) + 1
-    domw = int(np.ceil((width + 2 * margin) / dx)) + 1
-    probe = mpm.MPMConfig(materials=(mat,), dx=dx, dt=1e-9, domain=(dom, domw, domw),
-                          gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
-    dt = dt_fraction * mpm.max_stable_dt(probe)
-    cfg = mpm.MPMConfig(materials=(mat,), dx=dx, dt=dt, domain=(dom, domw, domw),
-                        gravity=(0.0, 0.0, 0.0), walls="none", max_speed=v0)
-    v = np.zeros_like(x)
-    v[:, 0] = v0 * np.cos(np.pi * (x[:, 0] - margin) / length)
-    state = mpm.init_state(cfg, x, v, vol=vol)
-    end = x[:, 0] < margin + 0.1 * length
-    c = np.sqrt(youngs / density)
-    return cfg, state, jnp.asarray(end), length / (2 * c), c
-
-
 def measure_bar(cells: int, ppc: int, dt_fraction: float):
-    cfg, state, end, t_quarter, c = bar_mode_scene(cells, ppc, dt_fraction)
-    n = int(np.ceil(1.6 * t_quarter / cfg.dt))
-    params = cfg.params
+    """The validation suite's free-free bar (:func:`dax_physics.validate.solid.bar_mode`):
+    its first longitudinal mode's quarter period against the exact wave speed."""
+    from ..validate.solid import bar_mode
 
-    @jax.jit
-    def run(s):
-        def body(s, _):
-            s = mpm.step(cfg, params, s)
-            return s, jnp.sum(jnp.where(end, s.v[:, 0], 0.0)) / jnp.sum(end)
-        return jax.lax.scan(body, s, None, length=n)[1]
-
-    t0 = time.perf_counter()
-    vel = np.asarray(run(state))
-    wall_first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    vel = np.asarray(run(state))
-    wall = time.perf_counter() - t0
-    k = int(np.argmax(vel < 0.0))
-    if vel[k] >= 0.0:
-        return dict(cells=cells, ppc=ppc, dt_fraction=dt_fraction, error=None, wall_s=wall)
-    # linear interpolation of the zero crossing between substeps k-1 and k
-    frac = vel[k - 1] / (vel[k - 1] - vel[k])
-    t_cross = (k + frac) * cfg.dt  # vel[i] is after substep i+1
-    c_meas = (c * t_quarter) / t_cross
-    return dict(cells=cells, ppc=ppc, dt=cfg.dt, dt_fraction=dt_fraction,
-                particles=int(state.x.shape[0]), substeps=n, wall_s=wall,
-                compile_and_first_run_s=wall_first, wave_speed=float(c_meas),
-                wave_speed_exact=float(c), error=float(abs(c_meas - c) / c))
+    r = bar_mode(cells, ppc=ppc, dt_fraction=dt_fraction)
+    c, exact = r["wave_speed"], r["wave_speed_exact"]
+    ok = bool(np.isfinite(c))
+    return dict(cells=cells, ppc=ppc, dt=r["dt"], dt_fraction=dt_fraction,
+                particles=r["particles"], substeps=r["substeps"], wall_s=r["wall_s"],
+                wave_speed=float(c) if ok else None, wave_speed_exact=exact,
+                error=float(abs(c - exact) / exact) if ok else None)
 
 
 def cmd_mpm_study(args):
