@@ -77,6 +77,15 @@ def replace_cast(params, changes: dict, keep=()):
     return dataclasses.replace(params, **changes)
 
 
+def _float_dtype(physics):
+    """The float type of a physics state: that of its first floating-point leaf (float32
+    if it has none)."""
+    for leaf in jax.tree_util.tree_leaves(physics):
+        if jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
+            return jnp.result_type(leaf)
+    return jnp.float32
+
+
 @pytree_dataclass
 class EnvState:
     """Dynamic state of one episode (a pytree).
@@ -304,7 +313,7 @@ class Env:
         spec = self.spec
         # the physics' float type (float32; float64 for a state cast to it, so a float64
         # gradient check sees the action it asks for, not its float32 rounding)
-        dtype = state.physics.x.dtype
+        dtype = _float_dtype(state.physics)
         action = jnp.asarray(action, dtype)
         if action.shape != (spec.action_dim,):
             raise ValueError(f"{spec.name}: expected a {spec.action_kind} action of shape "
