@@ -128,6 +128,17 @@ def test_unstable_dt_is_refused_with_the_largest_stable_dt():
     (dict(window=(16, 16, 32)), "fit in domain"),
     (dict(domain=(16, 16)), "must have 3 entries"),
     (dict(colliders=("plane",)), "colliders must be ColliderSpec"),
+    # a NaN max_speed made the stable bound NaN and every dt (here 1 s) passed
+    (dict(max_speed=math.nan, dt=1.0), "max_speed must be a finite speed >= 0"),
+    (dict(max_speed=math.inf), "max_speed must be a finite speed >= 0"),
+    (dict(max_speed=-1.0), "max_speed must be a finite speed >= 0"),
+    (dict(max_speed=-0.5 * DX / 1e-3), "max_speed must be a finite speed >= 0"),
+    (dict(max_speed="fast"), "max_speed must be a real number"),
+    (dict(gravity=(0.0, 0.0, math.nan)), "gravity must be 3 finite numbers"),
+    (dict(gravity=(0.0, -9.81)), "gravity must be 3 finite numbers"),
+    (dict(gravity=9.81), "gravity must be a sequence of numbers"),
+    (dict(wall_cells=-1), "wall_cells must be an int >= 0"),
+    (dict(wall_cells=1.5), "wall_cells must be an int >= 0"),
 ])
 def test_invalid_configuration_is_refused(kwargs, message):
     with pytest.raises((ValueError, TypeError), match=message):
@@ -151,3 +162,37 @@ def test_check_state_reports_a_non_finite_rollout():
     mpm.check_state(s)  # a fresh state passes
     with pytest.raises(FloatingPointError, match="non-finite"):
         mpm.check_state(s.replace(finite=np.asarray(False)))
+
+
+def test_negative_step_counts_are_refused():
+    from dax_physics import checkpointed_scan
+
+    cfg = _cfg()
+    state = mpm.init_state(cfg, _points())
+    with pytest.raises(ValueError, match="n_substeps must be an int >= 0, got -5"):
+        mpm.rollout(cfg, cfg.params, state, -5)  # ran zero steps silently
+    with pytest.raises(ValueError, match="length must be an int >= 0, got -1"):
+        checkpointed_scan(lambda c, _: (c, None), 0.0, length=-1)
+
+
+def test_a_particle_outrunning_the_time_step_is_flagged_unstable():
+    """200 m/s with the default max_speed 0 and no walls: the particles fly 4 cells per
+    substep out of the grid. The run used to keep ``finite`` true (positions ran on to 1e20
+    m) and check_state reported particles that left the window; now ``finite`` turns false
+    and check_state calls the run unstable."""
+    cfg = _cfg(walls="none")
+    limit = mpm.max_stable_speed(cfg)
+    water, tofu = materials.water(), materials.tofu()
+    assert limit == pytest.approx(DX / 1e-3 - max(water.wave_speed, tofu.wave_speed))
+    state = mpm.init_state(cfg, _points(), v=[200.0, 0.0, 0.0])
+    final = mpm.rollout(cfg, cfg.params, state, 20)
+    assert np.all(np.isfinite(np.asarray(final.x))) and bool(final.escaped)
+    assert not bool(final.finite), "a 200 m/s run kept its finite flag"
+    with pytest.raises(FloatingPointError, match="unstable"):
+        mpm.check_state(final)
+    with pytest.raises(FloatingPointError, match=rf"unstable: a particle moved at 200 m/s, "
+                                                 rf"faster than the {limit:.3g} m/s"):
+        mpm.check_state(final, cfg)
+    calm = mpm.rollout(cfg, cfg.params, mpm.init_state(cfg, _points(), v=[1.0, 0.0, 0.0]), 20)
+    assert bool(calm.finite), "a 1 m/s run was flagged"
+    mpm.check_state(calm, cfg)

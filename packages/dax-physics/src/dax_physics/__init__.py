@@ -21,6 +21,7 @@ from .mpm import (
     grasp,
     init_state,
     max_stable_dt,
+    max_stable_speed,
     release,
     rollout,
     set_collider_velocity,
@@ -36,7 +37,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 __all__ = [
     "ColliderSpec", "ColliderState", "MPMConfig", "MPMState", "Material", "MaterialParams",
     "check_params", "check_state", "checkpointed_scan", "cloth", "colliders", "dough",
-    "grasp", "init_state", "materials", "max_stable_dt", "mpm", "pytree_dataclass",
-    "release", "rollout", "rope", "sampling", "set_collider_velocity", "static_field",
-    "step", "tofu", "water",
+    "grasp", "init_state", "materials", "max_stable_dt", "max_stable_speed", "mpm",
+    "pytree_dataclass", "release", "rollout", "rope", "sampling", "set_collider_velocity",
+    "static_field", "step", "tofu", "water",
 ]

@@ -100,7 +100,10 @@ class MPMConfig:
         side of the domain (see the module docstring).
     colliders: tuple of :class:`~dax_physics.colliders.ColliderSpec`.
     max_speed: the largest particle or collider speed [m/s] the scene is expected to
-        reach; enters the CFL part of the stability bound.
+        reach (finite, >= 0); enters the CFL part of the stability bound. A run whose
+        particles exceed the speed the time step can carry at all (:func:`max_stable_speed`)
+        is flagged: its state's ``finite`` turns false and :func:`check_state` calls it
+        unstable.
     fluid_tension: let fluid particles stretch past J = 1 (negative pressure), as the
         Taichi and Warp reference scenes do; the default ``False`` caps J at 1 (see the
         module docstring).
@@ -135,13 +138,24 @@ class MPMConfig:
             raise ValueError(f"window {window} must be >= 4 cells and fit in domain {domain}")
         object.__setattr__(self, "domain", domain)
         object.__setattr__(self, "window", window)
-        object.__setattr__(self, "gravity", tuple(float(g) for g in self.gravity))
-        if not (math.isfinite(self.dx) and self.dx > 0):
+        gravity = tuple(_real(g, "gravity") for g in _entries(self.gravity, "gravity"))
+        if len(gravity) != 3 or not all(math.isfinite(g) for g in gravity):
+            raise ValueError(f"gravity must be 3 finite numbers in m/s^2, got {self.gravity}")
+        object.__setattr__(self, "gravity", gravity)
+        if not (math.isfinite(_real(self.dx, "dx")) and self.dx > 0):
             raise ValueError(f"dx must be a positive cell size in m, got {self.dx}")
-        if not (math.isfinite(self.dt) and self.dt > 0):
+        if not (math.isfinite(_real(self.dt, "dt")) and self.dt > 0):
             raise ValueError(f"dt must be a positive time step in s, got {self.dt}")
+        # A NaN max_speed made the stability bound NaN, and every dt passed the comparison;
+        # a negative one could divide by zero or suggest a negative dt.
+        if not (math.isfinite(_real(self.max_speed, "max_speed")) and self.max_speed >= 0):
+            raise ValueError(f"max_speed must be a finite speed >= 0 in m/s, got "
+                             f"{self.max_speed}")
         if self.walls not in WALL_MODES:
             raise ValueError(f"unknown wall mode {self.walls!r}; valid: {', '.join(WALL_MODES)}")
+        if not (isinstance(self.wall_cells, (int, np.integer))
+                and not isinstance(self.wall_cells, bool) and self.wall_cells >= 0):
+            raise ValueError(f"wall_cells must be an int >= 0, got {self.wall_cells!r}")
         for c in self.colliders:
             if not isinstance(c, col.ColliderSpec):
                 raise TypeError(f"colliders must be ColliderSpec entries, got {c!r}")
@@ -167,6 +181,38 @@ class MPMConfig:
         table and the colliders' friction coefficients (build it once and reuse it)."""
         return MaterialParams.from_materials(
             self.materials, friction=[c.friction for c in self.colliders])
+
+
+def _real(value, name: str) -> float:
+    """``value`` as a float; ``TypeError`` naming the field if it is not a real number."""
+    if isinstance(value, (bool, str, bytes, complex)):
+        raise TypeError(f"MPMConfig.{name} must be a real number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"MPMConfig.{name} must be a real number, got {value!r}") from None
+
+
+def _entries(value, name: str) -> tuple:
+    try:
+        return tuple(value)
+    except TypeError:
+        raise TypeError(f"MPMConfig.{name} must be a sequence of numbers, got "
+                        f"{value!r}") from None
+
+
+def max_stable_speed(cfg: MPMConfig, params: MaterialParams | None = None):
+    """The particle speed [m/s] above which ``cfg.dt`` cannot be stable at all: ``dx / dt
+    - c`` (Courant number 1 on the fastest wave speed ``c`` plus the particle's speed; ``c``
+    from ``params`` when given, which may be traced). The guard's CFL number 0.5 is the
+    margin ``dt`` is chosen with, so this speed is at least ``c + 2 max_speed``: a run
+    within the speeds the configuration assumes never reaches it. :func:`step` flags a
+    state whose particles exceed it (``finite`` false)."""
+    if params is None:
+        c = max(m.wave_speed for m in cfg.materials)
+    else:
+        c = jnp.max(params.wave_speed())
+    return cfg.dx / cfg.dt - c
 
 
 def max_stable_dt(cfg: MPMConfig, params: MaterialParams | None = None) -> float:
@@ -225,8 +271,9 @@ class MPMState:
     held_offset: the held particle's position in its collider's frame [m] (N, 3).
     colliders: :class:`~dax_physics.colliders.ColliderState`.
     origin: the active window's origin in cells (3,) int32.
-    finite: all positions stayed finite so far ().  escaped: some particle's stencil left
-    the window or domain and was clamped ().  time: simulated time [s] ().
+    finite: all positions stayed finite and no particle outran the time step (faster than
+    :func:`max_stable_speed`: the run is unstable) so far ().  escaped: some particle's
+    stencil left the window or domain and was clamped ().  time: simulated time [s] ().
     """
 
     x: jnp.ndarray
@@ -343,12 +390,31 @@ def _broadcasts_to(shape, target) -> bool:
         return False
 
 
-def check_state(state: MPMState) -> None:
-    """Raise if a rollout went non-finite or lost particles out of the window/domain.
+def check_state(state: MPMState, cfg: MPMConfig | None = None,
+                params: MaterialParams | None = None) -> None:
+    """Raise if a rollout went non-finite or unstable (a particle outran the time step,
+    :func:`max_stable_speed`) or lost particles out of the window/domain. An unstable run is
+    reported as such even when its particles also left the window (they did because of it);
+    with ``cfg`` (and ``params``, default ``cfg.params``) the message gives the speed limit.
     (This syncs with the host: call it after a rollout, not inside one.)"""
     finite = np.asarray(state.finite)
     escaped = np.asarray(state.escaped)
     if not finite.all():
+        x, v = np.asarray(state.x), np.asarray(state.v)
+        if np.all(np.isfinite(x)) and np.all(np.isfinite(v)):
+            speed = float(np.max(np.linalg.norm(v, axis=-1)))
+            if cfg is not None:
+                limit = float(max_stable_speed(cfg, cfg.params if params is None else params))
+                if speed > limit:
+                    raise FloatingPointError(
+                        f"the MPM run became unstable: a particle moved at {speed:.3g} m/s, "
+                        f"faster than the {limit:.3g} m/s the time step dt = {cfg.dt:.3g} s "
+                        f"can carry (dx / dt minus the fastest wave speed); lower dt or "
+                        f"raise MPMConfig.max_speed to what the scene reaches")
+            raise FloatingPointError(
+                f"the MPM run became unstable or non-finite: a particle outran the time step "
+                f"(dax_physics.mpm.max_stable_speed; the fastest moves at {speed:.3g} m/s "
+                f"now) or a value went NaN/inf; lower dt or raise MPMConfig.max_speed")
         raise FloatingPointError("the MPM state became non-finite (NaN/inf): the time step "
                                  "is probably unstable for the velocities reached")
     if escaped.any():
@@ -675,7 +741,12 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
         new_v_arr = jnp.where(is_held, hv, new_v_arr)
         new_C_arr = jnp.where(is_held[:, :, None], 0.0, new_C_arr)
 
-    finite = state.finite & jnp.all(jnp.isfinite(new_x))
+    # A particle faster than dx / dt - c breaks the CFL condition outright: flag the run
+    # as unstable (it may still be finite, and then only its escaped flag would show it).
+    speed_limit = max_stable_speed(cfg, params)
+    outran = jnp.max(jnp.sum(new_v_arr * new_v_arr, axis=1)) > speed_limit * jnp.abs(
+        speed_limit)
+    finite = state.finite & jnp.all(jnp.isfinite(new_x)) & ~outran
     return state.replace(
         x=new_x, v=new_v_arr, C=new_C_arr, H=new_H, J=new_J, colliders=cstate,
         origin=origin, finite=finite, escaped=state.escaped | escaped, time=state.time + dt)
@@ -691,7 +762,12 @@ def rollout(cfg: MPMConfig, params: MaterialParams, state: MPMState, n_substeps:
         whose remainder rule applies); reverse-mode memory then grows with the number of
         segments, not substeps, at the cost of recomputing each segment once in the
         backward pass. ``None``: no checkpointing. Forward values are the same either way.
+    A negative or non-integer ``n_substeps`` raises ``ValueError`` (0 returns ``state``).
     """
+    if isinstance(n_substeps, bool) or not isinstance(n_substeps, (int, np.integer)) \
+            or n_substeps < 0:
+        raise ValueError(f"n_substeps must be an int >= 0, got {n_substeps!r}")
+
     def body(s, _):
         return step(cfg, params, s), None
 

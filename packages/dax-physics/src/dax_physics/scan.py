@@ -29,6 +29,9 @@ def _scan_length(xs, length) -> int:
     """The number of steps: ``length``, checked against the leading axis of ``xs``."""
     leaves = jax.tree_util.tree_leaves(xs)
     if length is not None:
+        # lax.scan runs a negative length as zero steps: refuse it instead of doing nothing
+        if isinstance(length, bool) or int(length) != length or length < 0:
+            raise ValueError(f"length must be an int >= 0, got {length!r}")
         n = int(length)
         if any(leaf.shape[0] != n for leaf in leaves):
             raise ValueError(f"length {n} does not match the leading axis of xs "

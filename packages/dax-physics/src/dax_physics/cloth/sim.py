@@ -507,9 +507,12 @@ def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_steps: int,
         whose remainder rule applies), so reverse-mode memory grows with the number of
         segments rather than substeps; ``None``: no checkpointing. Forward values are the
         same either way.
-    Raises ``ValueError`` (when called with concrete arrays) if ``cfg.dt`` is unstable.
+    Raises ``ValueError`` (when called with concrete arrays) if ``cfg.dt`` is unstable, and
+    for a negative ``n_steps``.
     """
     check_stable(cfg, cloth)
+    if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 0:
+        raise ValueError(f"n_steps must be an int >= 0, got {n_steps!r}")
     n_steps = int(n_steps)
     if n_steps == 0:
         return state
