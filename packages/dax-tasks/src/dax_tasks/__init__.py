@@ -20,7 +20,15 @@ from importlib.metadata import PackageNotFoundError, version
 from . import checks, goals, io, render, rewards, wrappers
 from .env import Env, EnvParams, EnvState
 from .goals import GoalFileError
-from .registry import TASKS, available, env_class, get_spec, make, spec_from_json
+from .registry import (
+    TASKS,
+    available,
+    check_overrides,
+    env_class,
+    get_spec,
+    make,
+    spec_from_json,
+)
 from .rewards import auxiliary_reward, chamfer, ground_truth_reward, l2_correspondence
 from .spec import Box, TaskSpec
 
@@ -74,7 +82,7 @@ _register_gym_ids()
 
 __all__ = [
     "TASKS", "Box", "Env", "EnvParams", "EnvState", "GoalFileError", "TaskSpec", "__version__",
-    "auxiliary_reward", "available", "chamfer", "checks", "env_class", "get_spec", "goals",
-    "ground_truth_reward", "io", "l2_correspondence", "make", "render", "rewards",
-    "spec_from_json", "wrappers",
+    "auxiliary_reward", "available", "chamfer", "check_overrides", "checks", "env_class",
+    "get_spec", "goals", "ground_truth_reward", "io", "l2_correspondence", "make", "render",
+    "rewards", "spec_from_json", "wrappers",
 ]

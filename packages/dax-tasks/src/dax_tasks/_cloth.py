@@ -347,9 +347,10 @@ def rigid_pose(key, scene: ClothScene, x):
     """``x`` rotated about the vertical axis through the origin by a uniform angle in
     ``±rotation_range`` and shifted by a uniform offset in ``±offset_range`` (x and y)."""
     k_rot, k_off = jax.random.split(key)
-    th = jax.random.uniform(k_rot, (), minval=-scene.rotation_range,
+    # float32 draws in either precision: a seed gives the same pose under x64
+    th = jax.random.uniform(k_rot, (), jnp.float32, minval=-scene.rotation_range,
                             maxval=scene.rotation_range)
-    off = jax.random.uniform(k_off, (2,), minval=-scene.offset_range,
+    off = jax.random.uniform(k_off, (2,), jnp.float32, minval=-scene.offset_range,
                              maxval=scene.offset_range)
     c, s = jnp.cos(th), jnp.sin(th)
     xy = jnp.stack([c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1]], 1) + off

@@ -16,21 +16,30 @@ from .env import EnvParams
 
 
 def check_action(env, action, batch_shape: tuple = ()) -> np.ndarray:
-    """``action`` as a float32 NumPy array of shape ``batch_shape + (action_dim,)``;
-    ``ValueError`` naming the task and the problem if it is not numbers, has another
-    shape, or holds NaN/inf. Out-of-bound values are allowed (the env clips them)."""
+    """``action`` as a float32 NumPy array of shape ``batch_shape + (action_dim,)``, clipped
+    to the spec's bounds; ``ValueError`` naming the task and the problem if it is not real
+    numbers, has another shape, or holds NaN/inf. Out-of-bound values are allowed and
+    clipped as the env clips them; the check and the clip happen in float64, before the
+    cast to float32, so a finite action beyond float32's range (1e39) is clipped, not
+    turned into inf."""
     spec = env.spec
     try:
-        a = np.asarray(action, dtype=np.float32)
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "fiu":
+            raise TypeError(f"dtype {raw.dtype}")
+        a = raw.astype(np.float64)
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{spec.name}: action is not an array of numbers ({err})") from None
+        raise ValueError(f"{spec.name}: action is not an array of numbers (real ones; "
+                         f"{err})") from None
     shape = tuple(batch_shape) + (spec.action_dim,)
     if a.shape != shape:
         raise ValueError(f"{spec.name}: expected a {spec.action_kind} action of shape "
                          f"{shape}, got {a.shape}")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"{spec.name}: action contains NaN or inf: {a.tolist()}")
-    return a
+    low = np.asarray(spec.action_low, np.float64)
+    high = np.asarray(spec.action_high, np.float64)
+    return np.clip(a, low, high).astype(np.float32)
 
 
 def check_key(key, batch_size: int | None = None):

@@ -86,6 +86,24 @@ def _float_dtype(physics):
     return jnp.float32
 
 
+def float_dtype():
+    """The float type tasks compute in: float32, or float64 when JAX's ``jax_enable_x64``
+    is on (then :meth:`Env.reset` returns a float64 physics state)."""
+    return jnp.dtype(jax.dtypes.canonicalize_dtype(jnp.float64))
+
+
+def cast_floats(tree, dtype):
+    """``tree`` with every floating-point leaf cast to ``dtype`` (other leaves as they
+    are; a leaf already of ``dtype`` is returned unchanged)."""
+    def cast(leaf):
+        if jnp.issubdtype(jnp.result_type(leaf), jnp.floating) and \
+                jnp.result_type(leaf) != dtype:
+            return jnp.asarray(leaf).astype(dtype)
+        return leaf
+
+    return jax.tree_util.tree_map(cast, tree)
+
+
 @pytree_dataclass
 class EnvState:
     """Dynamic state of one episode (a pytree).
@@ -240,6 +258,13 @@ class Env:
         must have ``n_object_points`` rows)."""
         return self.spec.distance == "l2" and type(self).distance is Env.distance
 
+    @property
+    def n_goal_points(self) -> int | None:
+        """The number of points a goal of this task must have, or ``None`` when any
+        number works: ``n_object_points`` for an index-correspondence goal (a task whose
+        goal is its object's particle set in some other sense overrides this)."""
+        return self.n_object_points if self.goal_correspondence else None
+
     # ------------------------------------------------------------------ params
     def with_goal(self, points, provenance: dict | None = None) -> Env:
         """A copy of this env whose default goal is ``points`` (N, 3) [m]."""
@@ -247,9 +272,9 @@ class Env:
         if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
             raise ValueError(f"{self.name}: a goal must be a finite (N, 3) array of points "
                              f"in m, got shape {pts.shape}")
-        if self.goal_correspondence and pts.shape[0] != self.n_object_points:
+        if self.n_goal_points is not None and pts.shape[0] != self.n_goal_points:
             raise ValueError(f"{self.name}: the goal has {pts.shape[0]} points but the "
-                             f"object has {self.n_object_points} (made for another scene "
+                             f"task's goal has {self.n_goal_points} (made for another scene "
                              f"resolution?)")
         new = copy.copy(self)
         new._goal, new.goal_provenance = pts, provenance
@@ -292,9 +317,14 @@ class Env:
 
     # ------------------------------------------------------------------ the pure API
     def reset(self, key, params: EnvParams | None = None):
-        """``(obs, state)`` of a new episode drawn from ``key`` (a ``PRNGKey``)."""
+        """``(obs, state)`` of a new episode drawn from ``key`` (a ``PRNGKey``).
+
+        The physics state is float32, or float64 when ``jax_enable_x64`` is on
+        (:func:`float_dtype`); the tasks draw their random numbers in float32 either way,
+        so a seed gives the same initial state in both precisions, up to float32 rounding.
+        """
         params = self.default_params if params is None else params
-        physics = self.init(key, params)
+        physics = cast_floats(self.init(key, params), float_dtype())
         state = EnvState(physics=physics, t=jnp.zeros((), jnp.int32),
                          finite=jnp.asarray(True))
         return self.observe(physics), state
@@ -303,9 +333,11 @@ class Env:
         """``(obs, state, reward, done, info)`` after one environment step.
 
         The action is clipped to the spec's bounds (zero gradient across a clipped
-        dimension). A wrong action shape raises ``ValueError`` (at trace time); a NaN/inf
-        action is not inspected here: it turns ``info["finite"]`` and ``state.finite``
-        false (use :func:`dax_tasks.checks.check_action` at the boundary to refuse it).
+        dimension) in its own precision, then cast to the physics state's float type, so a
+        finite float64 action beyond float32's range is clipped, not turned into inf. A
+        wrong action shape raises ``ValueError`` (at trace time); a NaN/inf action is not
+        inspected here: it turns ``info["finite"]`` and ``state.finite`` false (use
+        :func:`dax_tasks.checks.check_action` at the boundary to refuse it).
         ``info``: ``r_gt``, ``r_aux``, ``distance`` [m], ``finite``, ``escaped`` (MPM
         particles left the grid), ``t``.
         """
@@ -314,13 +346,17 @@ class Env:
         # the physics' float type (float32; float64 for a state cast to it, so a float64
         # gradient check sees the action it asks for, not its float32 rounding)
         dtype = _float_dtype(state.physics)
-        action = jnp.asarray(action, dtype)
+        action = jnp.asarray(action)
         if action.shape != (spec.action_dim,):
             raise ValueError(f"{spec.name}: expected a {spec.action_kind} action of shape "
                              f"({spec.action_dim},), got {action.shape}")
+        # clip before any narrowing cast (a finite 1e39 in float64 is inf in float32)
+        wide = jnp.promote_types(action.dtype, dtype) if jnp.issubdtype(
+            action.dtype, jnp.floating) else dtype
+        action = action.astype(wide)
         finite_action = jnp.all(jnp.isfinite(action))
-        action = jnp.clip(action, jnp.asarray(spec.action_low, dtype),
-                          jnp.asarray(spec.action_high, dtype))
+        action = jnp.clip(action, jnp.asarray(spec.action_low, wide),
+                          jnp.asarray(spec.action_high, wide)).astype(dtype)
         physics = self.apply_action(state.physics, action, params)
         pts = self.object_points(physics)
         dist = self.distance(physics, params.goal)
@@ -341,9 +377,11 @@ class Env:
         """The scripted expert's action for ``state``, inside the action bounds (pure;
         ``NotImplementedError`` if the task has none)."""
         params = self.default_params if params is None else params
-        action = jnp.asarray(self.expert(state, params), jnp.float32)
-        return jnp.clip(action, jnp.asarray(self.spec.action_low, jnp.float32),
-                        jnp.asarray(self.spec.action_high, jnp.float32))
+        action = self.expert(state, params)  # NotImplementedError first, for any state
+        dtype = _float_dtype(state.physics)  # float64 for a float64 state
+        action = jnp.asarray(action, dtype)
+        return jnp.clip(action, jnp.asarray(self.spec.action_low, dtype),
+                        jnp.asarray(self.spec.action_high, dtype))
 
     @property
     def unwrapped(self) -> Env:

@@ -6,8 +6,11 @@ goals are defined directly (Push-Rope's straight rope); others are the end state
 canonical scripted motion (a fold), which costs a simulation. :func:`resolve_goal` looks a
 goal up, in this order:
 
-1. an explicit ``path`` (``dax_tasks.make(name, goal_path=...)``): used as it is; a
-   missing, corrupted or mismatched file is an error (:class:`GoalFileError`);
+1. an explicit ``path`` (``dax_tasks.make(name, goal_path=...)``): a missing, corrupted
+   or mismatched file is an error (:class:`GoalFileError`), and so is a goal made for
+   another spec or by other code (its provenance's fingerprint is not the spec's; the
+   message gives both): pass ``allow_goal_mismatch=True`` to use it anyway, with a
+   warning;
 2. the cache directory (:func:`cache_dir`: ``$DAX_CACHE_DIR/goals``, default
    ``~/.cache/dax/goals``), file ``<task>-<fingerprint>.npz`` where the fingerprint is the
    spec's own (:meth:`dax_tasks.TaskSpec.fingerprint`: every spec field and the source code
@@ -81,24 +84,47 @@ def save_goal(path: str | os.PathLike, points, prov: dict) -> Path:
                                                  provenance=np.asarray(json.dumps(prov))))
 
 
-def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None):
-    """``(points, provenance)`` from a goal file, checked: readable, ``points`` a finite
-    (N, 3) array, N equal to ``n_points`` when given and the task equal to ``spec.name``
-    when given. Raises :class:`GoalFileError` naming the file and the problem."""
+def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None,
+              allow_mismatch: bool = False):
+    """``(points, provenance)`` from a goal file, checked: a readable ``.npz`` whose
+    ``points`` are a finite real (N, 3) array and whose ``provenance`` is a JSON object; N
+    equal to ``n_points`` when given; when ``spec`` is given, the task equal to
+    ``spec.name`` and the provenance's fingerprint equal to ``spec.fingerprint()`` (a goal
+    made for another spec or by other code: refused, or only warned about with
+    ``allow_mismatch``). Raises :class:`GoalFileError` naming the file and the problem."""
     path = Path(path)
     if not path.is_file():
         raise GoalFileError(f"{path}: goal file not found")
     try:
-        with np.load(path, allow_pickle=False) as data:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+        raise GoalFileError(f"{path}: unreadable or truncated goal file ({err})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):  # a bare .npy array
+        raise GoalFileError(f"{path}: not a goal file: a single NumPy array, not an .npz "
+                            f"archive with 'points' and 'provenance' (write goal files with "
+                            f"dax_tasks.goals.save_goal)")
+    try:
+        with data:
             if "points" not in data.files:
                 raise GoalFileError(f"{path}: not a goal file (no 'points' array; "
                                     f"has {sorted(data.files)})")
             pts = np.asarray(data["points"])
-            prov = json.loads(str(data["provenance"])) if "provenance" in data.files else {}
+            text = data["provenance"] if "provenance" in data.files else np.asarray("{}")
     except GoalFileError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
         raise GoalFileError(f"{path}: unreadable or truncated goal file ({err})") from None
+    prov = None
+    if text.shape == () and text.dtype.kind == "U":
+        try:
+            prov = json.loads(str(text))
+        except ValueError:
+            prov = None
+    if not isinstance(prov, dict):
+        raise GoalFileError(f"{path}: 'provenance' must be a JSON object (text), got a "
+                            f"{text.dtype} array of shape {text.shape}")
+    if pts.dtype.kind not in "fiu":  # complex points lost their imaginary part silently
+        raise GoalFileError(f"{path}: goal points must be real numbers, got dtype {pts.dtype}")
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise GoalFileError(f"{path}: goal points must have shape (N, 3), got {pts.shape}")
     if not np.all(np.isfinite(pts)):
@@ -106,8 +132,19 @@ def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None):
     if n_points is not None and pts.shape[0] != n_points:
         raise GoalFileError(f"{path}: goal has {pts.shape[0]} points but the task's object "
                             f"has {n_points} (made for another scene resolution?)")
-    if spec is not None and prov.get("task", spec.name) != spec.name:
-        raise GoalFileError(f"{path}: goal of task {prov['task']!r}, not {spec.name!r}")
+    if spec is not None:
+        if prov.get("task", spec.name) != spec.name:
+            raise GoalFileError(f"{path}: goal of task {prov['task']!r}, not {spec.name!r}")
+        made_for, fp = prov.get("fingerprint"), spec.fingerprint()
+        if made_for != fp:
+            what = (f"made for fingerprint {made_for}" if made_for is not None
+                    else "its provenance names no fingerprint")
+            problem = (f"{path}: goal {what}, not this task's {fp} (another spec of "
+                       f"{spec.name} or other dax-tasks/dax-physics code)")
+            if not allow_mismatch:
+                raise GoalFileError(f"{problem}; pass allow_goal_mismatch=True to "
+                                    f"dax_tasks.make to use it anyway")
+            warnings.warn(f"using a mismatched goal: {problem}", stacklevel=3)
     return pts.astype(np.float32), prov
 
 
@@ -120,14 +157,14 @@ def compute_goal(env):
     return pts
 
 
-def resolve_goal(env, path=None, use_cache: bool = True):
+def resolve_goal(env, path=None, use_cache: bool = True, allow_mismatch: bool = False):
     """``(points, provenance)`` of the goal of ``env`` (an :class:`dax_tasks.Env` without
-    one yet): from ``path``, else the cache, else computed (and cached). See the module
-    docstring."""
+    one yet): from ``path`` (checked against the spec, see :func:`load_goal`), else the
+    cache, else computed (and cached). See the module docstring."""
     spec = env.spec
-    n_points = env.n_object_points if env.goal_correspondence else None
+    n_points = env.n_goal_points
     if path is not None:
-        return load_goal(path, spec, n_points)
+        return load_goal(path, spec, n_points, allow_mismatch=allow_mismatch)
     cached = goal_file(spec)
     if use_cache and cached.is_file():
         try:

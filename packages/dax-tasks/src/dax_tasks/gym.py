@@ -73,6 +73,13 @@ def _box(box, batch: tuple = ()) -> spaces.Box:
                       dtype=box.dtype)
 
 
+def _clipped(action, low, high, axis=None):
+    """Whether ``action`` (as given, before :func:`check_action` clipped it) lies outside
+    the action space's float32 bounds (per environment with ``axis=-1``)."""
+    a = np.asarray(action, np.float64)
+    return np.any((a < low) | (a > high), axis=axis)
+
+
 def _info(info: dict, clipped) -> dict:
     out = {k: np.asarray(v) for k, v in info.items()}
     out["clipped"] = np.asarray(clipped)
@@ -137,8 +144,8 @@ class DaxEnv(_Adapter, gymnasium.Env):
     def step(self, action):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        a = check_action(self.env, action)
-        clipped = bool(np.any((a < self._low) | (a > self._high)))
+        a = check_action(self.env, action)  # clipped to the bounds
+        clipped = _clipped(action, self._low, self._high)
         obs, self._state, reward, done, info = self._step(self._state, a)
         return (np.asarray(obs, self._obs_dtype), float(reward), False, bool(done),
                 _info(info, clipped))
@@ -190,8 +197,8 @@ class DaxVectorEnv(_Adapter, gymnasium.vector.VectorEnv):
             zeros = np.zeros(self.num_envs, np.float32)
             false = np.zeros(self.num_envs, bool)
             return obs, zeros, false, false, {}
-        a = check_action(self.env, actions, (self.num_envs,))
-        clipped = np.any((a < self._low) | (a > self._high), axis=-1)
+        a = check_action(self.env, actions, (self.num_envs,))  # clipped to the bounds
+        clipped = _clipped(actions, self._low, self._high, axis=-1)
         obs, self._state, reward, done, info = self._step(self._state, a)
         truncated = np.asarray(done, bool)
         self._needs_reset = bool(truncated.any())

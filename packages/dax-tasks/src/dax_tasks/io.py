@@ -1,21 +1,43 @@
-"""Atomic file writes: the one helper every DaX package uses for what it writes (goal files
-and GIFs here, demonstration files in dax-data, benchmark reports in dax-algos).
+"""Atomic file writes and one writer per file: the helpers every DaX package uses for what
+it writes (goal files and GIFs here, demonstration files in dax-data, benchmark reports in
+dax-algos).
 
 A write goes to a temporary file in the target's directory, is flushed and fsynced, and is
 renamed onto the target only when complete (then the directory is fsynced too), so a
 reader sees the old file or the new one, never half of one; a failed or interrupted write
 leaves no temporary file behind.
+
+A file that is *updated* over a long run (a demonstration file gaining an episode at a
+time, a benchmark's results) also needs a single writer: two runs copying, extending and
+renaming the same file lose each other's work. :func:`exclusive` holds an advisory lock
+(``flock(2)``) on a lock file beside it, ``.<name>.lock``, for the whole run: a second
+writer is refused at once (:class:`FileLockedError`, naming the holder's pid, host,
+program and start time) or waits for it. The kernel releases the lock when its holder
+exits, however it exits (even ``kill -9``), so a lock is never stale; the holder removes
+the lock file when done. Readers take no lock: they see whole files, thanks to the atomic
+renames. The lock is advisory (only DaX's writers take it) and assumes a local file
+system (``flock`` on NFS may not be seen by other hosts).
 """
 
 from __future__ import annotations
 
 import contextlib
+import datetime
+import json
 import os
 import shutil
+import socket
+import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: no locks (documented)
+    fcntl = None
 
 
 def temporaries(path: str | os.PathLike) -> list:
@@ -77,3 +99,91 @@ def atomic_write(path: str | os.PathLike, data: bytes | str | Callable[[BinaryIO
         else:
             f.write(data.encode() if isinstance(data, str) else data)
     return Path(path)
+
+
+class FileLockedError(OSError):
+    """Another process holds the write lock of a file (:func:`exclusive`); the message
+    names the file and the holder."""
+
+
+def lock_path(path: str | os.PathLike) -> Path:
+    """The lock file of ``path``: ``.<name>.lock`` in the same directory."""
+    path = Path(path)
+    return path.parent / f".{path.name}.lock"
+
+
+def _holder(fd: int) -> str:
+    """What the lock file says about its holder (written by :func:`exclusive`)."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+    except (OSError, ValueError):
+        info = {}
+    if not isinstance(info, dict) or "pid" not in info:
+        return "another process"
+    return (f"pid {info.get('pid')} on {info.get('host', '?')}, {info.get('program', '?')}, "
+            f"since {info.get('since', '?')}")
+
+
+@contextlib.contextmanager
+def exclusive(path: str | os.PathLike, wait: float = 0.0, program: str | None = None,
+              poll: float = 0.1) -> Iterator[Path]:
+    """Hold the write lock of ``path`` for the ``with`` block (see the module docstring).
+
+    wait: seconds to wait for another holder to finish (0: refuse at once; ``math.inf``:
+        wait as long as it takes).
+    program: what the lock file records as the holder (default: the command line).
+    Raises :class:`FileLockedError` if another process holds the lock after ``wait``
+    seconds, and ``OSError`` (e.g. ``PermissionError``) if the lock file cannot be created,
+    so an unwritable directory is found before any work. Yields the lock file's path. The
+    lock is per open file: a second ``exclusive`` of the same file in the same process is
+    refused too. Without ``fcntl`` (not POSIX) nothing is locked.
+    """
+    path = Path(path)
+    lock = lock_path(path)
+    if fcntl is None:  # pragma: no cover
+        yield lock
+        return
+    deadline = time.monotonic() + wait
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            for _ in range(5):  # the holder writes who it is just after taking the lock
+                if holder != "another process":
+                    break
+                time.sleep(0.02)
+                holder = _holder(fd)
+            os.close(fd)
+            if time.monotonic() >= deadline:
+                waited = f" (waited {wait:g} s)" if wait > 0 else ""
+                raise FileLockedError(
+                    f"{path}: another process is writing it ({holder}; lock file "
+                    f"{lock}){waited}; wait for it to finish, or write elsewhere") from None
+            time.sleep(poll)
+            continue
+        except BaseException:
+            os.close(fd)
+            raise
+        # The previous holder removes the lock file when it is done: a lock taken on the
+        # file it removed guards nothing, so take the lock again on the current one.
+        try:
+            current = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            current = False
+        if current:
+            break
+        os.close(fd)
+    try:
+        info = {"pid": os.getpid(), "host": socket.gethostname(),
+                "program": program or " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:200],
+                "since": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                    timespec="seconds")}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(info).encode(), 0)
+        yield lock
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)  # while still holding it (see above)
+        os.close(fd)

@@ -234,7 +234,7 @@ class Pour(MPMEnv):
         """The source bowl at a random offset from ``source_wrist``, upright, contents at
         rest."""
         rng = jnp.asarray(self.spec.scene.init_range, jnp.float32)
-        off = jax.random.uniform(key, (3,), minval=-1.0, maxval=1.0) * rng
+        off = jax.random.uniform(key, (3,), jnp.float32, minval=-1.0, maxval=1.0) * rng
         template = self._template
         cs = template.colliders
         return template.replace(x=template.x + off,
@@ -268,6 +268,13 @@ class Pour(MPMEnv):
         cs = physics.colliders
         return physics.replace(colliders=cs.replace(lin_vel=jnp.zeros_like(cs.lin_vel),
                                                     ang_vel=jnp.zeros_like(cs.ang_vel)))
+
+    @property
+    def n_goal_points(self) -> int:
+        """The goal is the contents packed in the target cavity: one point per particle
+        (``D`` does not read it, but renderings and demonstration files do; a goal of
+        another size was made for another scene)."""
+        return self.n_object_points
 
     def distance(self, physics, goal):
         """``D`` [m]: the mean distance of the particles to the target cavity (the contents

@@ -204,12 +204,15 @@ class PushRope(MPMEnv):
         scene = self.spec.scene
         k_amp, k_phase, k_head, k_off = jax.random.split(key, 4)
         modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
-        amp = jax.random.uniform(k_amp, (scene.bend_modes,), minval=-1.0, maxval=1.0)
+        # float32 draws in either precision: a seed gives the same rope under x64
+        amp = jax.random.uniform(k_amp, (scene.bend_modes,), jnp.float32, minval=-1.0,
+                                 maxval=1.0)
         amp = amp * scene.bend_amplitude / modes
-        phase = jax.random.uniform(k_phase, (scene.bend_modes,), maxval=2 * math.pi)
-        theta0 = jax.random.uniform(k_head, (), minval=-scene.heading_range,
+        phase = jax.random.uniform(k_phase, (scene.bend_modes,), jnp.float32,
+                                   maxval=2 * math.pi)
+        theta0 = jax.random.uniform(k_head, (), jnp.float32, minval=-scene.heading_range,
                                     maxval=scene.heading_range)
-        offset = jax.random.uniform(k_off, (), minval=-scene.offset_range,
+        offset = jax.random.uniform(k_off, (), jnp.float32, minval=-scene.offset_range,
                                     maxval=scene.offset_range)
         offset = jnp.stack([jnp.zeros_like(offset), offset])  # across the goal line only
 

@@ -6,6 +6,8 @@ import dataclasses
 import importlib
 from types import MappingProxyType
 
+import numpy as np
+
 from . import goals
 from .env import Env, EnvParams
 from .spec import TaskSpec
@@ -79,8 +81,34 @@ def env_class(name: str) -> type[Env]:
     return _entry(name)[0]
 
 
+def check_overrides(name: str, overrides: dict) -> dict:
+    """The :func:`make` overrides of task ``name``, checked before anything is built:
+    :class:`TaskSpec` fields against the default spec's field types (a ``scene`` field by
+    field against the default scene's; :func:`dax_tasks.spec.checked_fields`) and ``lam`` /
+    ``aux_weight`` as real numbers. ``ValueError`` naming the key and the value (an unknown
+    key lists the valid ones); returns the overrides with ints made floats for float
+    fields and lists made tuples."""
+    from .spec import checked_fields
+
+    default = _entry(name)[1]
+    spec_fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
+    unknown = sorted(set(overrides) - spec_fields - set(PARAM_OVERRIDES))
+    if unknown:
+        raise ValueError(f"unknown override(s) {unknown}; valid: TaskSpec fields "
+                         f"{sorted(spec_fields)} and params {list(PARAM_OVERRIDES)}")
+    params = {k: v for k, v in overrides.items() if k in PARAM_OVERRIDES}
+    out = checked_fields(default, {k: v for k, v in overrides.items() if k not in params})
+    for key, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) and not (
+                hasattr(value, "dtype") and getattr(value, "shape", None) == ()
+                and np.dtype(value.dtype).kind in "fiu"):
+            raise ValueError(f"{key} must be a number, got {type(value).__name__} {value!r}")
+        out[key] = value
+    return out
+
+
 def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=None,
-         cache_goal: bool = True, **overrides) -> Env:
+         cache_goal: bool = True, allow_goal_mismatch: bool = False, **overrides) -> Env:
     """Build task ``name`` as a pure environment (:class:`dax_tasks.Env`).
 
     overrides: :class:`TaskSpec` fields (``horizon=3``, ``substeps=50``, a new ``scene``,
@@ -91,20 +119,22 @@ def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=Non
         ``"height"``, ``"rgb"`` or ``"rgbd"``: any other mode wraps the env in
         :class:`dax_tasks.wrappers.ObservationMode` with images of ``image_size`` pixels.
     goal_path / cache_goal: where the goal comes from (:mod:`dax_tasks.goals`).
+    allow_goal_mismatch: use a ``goal_path`` made for another spec or by other code (its
+        fingerprint is not this spec's) with a warning instead of refusing it.
+
+    Overrides are checked against the types of the fields they change before anything is
+    built (:func:`check_overrides`).
 
     Batching, auto-reset and episode statistics are wrappers the caller chooses
     (:mod:`dax_tasks.wrappers`); the Gymnasium ids are in :mod:`dax_tasks.gym`.
     """
     cls, default = _entry(name)
-    spec_fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
-    unknown = sorted(set(overrides) - spec_fields - set(PARAM_OVERRIDES))
-    if unknown:
-        raise ValueError(f"unknown override(s) {unknown}; valid: TaskSpec fields "
-                         f"{sorted(spec_fields)} and params {list(PARAM_OVERRIDES)}")
+    overrides = check_overrides(name, overrides)
     param_changes = {k: overrides.pop(k) for k in PARAM_OVERRIDES if k in overrides}
     spec = dataclasses.replace(default, **overrides)
     env = cls(spec)
-    points, provenance = goals.resolve_goal(env, goal_path, use_cache=cache_goal)
+    points, provenance = goals.resolve_goal(env, goal_path, use_cache=cache_goal,
+                                            allow_mismatch=allow_goal_mismatch)
     env = env.with_goal(points, provenance)
     if param_changes:
         env = env.with_default_params(_checked_params(env, param_changes))

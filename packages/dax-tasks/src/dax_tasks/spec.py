@@ -125,6 +125,86 @@ class TaskSpec:
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
+_KINDS = {"bool": bool, "int": int, "float": float, "str": str, "tuple": tuple}
+
+
+def checked_fields(default, changes: dict, prefix: str = "") -> dict:
+    """``changes`` to the fields of the dataclass instance ``default`` (a spec or a scene),
+    each checked against its field's type (the annotation, else the default value's type):
+    a bool for a bool field, an int (not a bool, not 6.5) for an int field, a finite real
+    number for a float field (unless its default is not finite), a string for a string
+    field, a list or tuple of as many entries as the default, each checked the same way,
+    for a tuple field (any number of entries, each shaped like the default's first, when
+    the default is a tuple of tuples: a throw's phases); a dataclass field (a spec's
+    scene) takes an instance of the default's class with fields of the right types.
+    Returns the changes with ints made floats for float fields and lists made tuples;
+    ``ValueError`` naming ``prefix + field`` and the value otherwise, before anything is
+    built from them. Unknown fields are refused."""
+    fields = {f.name: f for f in dataclasses.fields(default)}
+    unknown = sorted(set(changes) - set(fields))
+    if unknown:
+        raise ValueError(f"unknown {type(default).__name__} field(s) "
+                         f"{[prefix + u for u in unknown]}; valid: {sorted(fields)}")
+    return {name: _checked(prefix + name, value, getattr(default, name),
+                           _KINDS.get(fields[name].type if isinstance(fields[name].type, str)
+                                      else getattr(fields[name].type, "__name__", None)))
+            for name, value in changes.items()}
+
+
+def _checked(where: str, value, default, kind=None):
+    """``value`` checked against the type ``kind`` (or that of ``default``); see
+    :func:`checked_fields`."""
+    if kind is None:
+        if default is None:
+            return value
+        if dataclasses.is_dataclass(default) and not isinstance(default, type):
+            if type(value) is not type(default):
+                raise ValueError(f"{where} must be a {type(default).__name__}, got "
+                                 f"{type(value).__name__} {value!r}")
+            checked_fields(default, {f.name: getattr(value, f.name)
+                                     for f in dataclasses.fields(value)}, where + ".")
+            return value
+        kind = next((k for k in (bool, int, float, str, tuple) if type(default) is k), None)
+        if kind is None:
+            return value
+    got = f"got {type(value).__name__} {value!r}"
+    if kind is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{where} must be true or false, {got}")
+        return bool(value)
+    if kind is int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{where} must be an integer, {got}")
+        return int(value)
+    if kind is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                         np.floating)):
+            raise ValueError(f"{where} must be a number, {got}")
+        number = float(value)
+        if not math.isfinite(number) and (not isinstance(default, (int, float))
+                                          or math.isfinite(default)):
+            raise ValueError(f"{where} must be a finite number, got {number}")
+        return number
+    if kind is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{where} must be a string, {got}")
+        return value
+    if not isinstance(value, (tuple, list)):
+        raise ValueError(f"{where} must be a list of {len(default)} entries, {got}"
+                         if isinstance(default, tuple) else f"{where} must be a list, {got}")
+    if isinstance(default, tuple) and default and all(isinstance(d, tuple) for d in default):
+        # a list of records (a throw's phases, an outline's pairs): any number of them,
+        # each shaped like the default's first
+        return tuple(_checked(f"{where}[{i}]", v, default[0]) for i, v in enumerate(value))
+    if isinstance(default, tuple) and default:
+        if len(value) != len(default):
+            raise ValueError(f"{where} must have {len(default)} entries like its default "
+                             f"{list(default)}, got {len(value)}: {list(value)}")
+        return tuple(_checked(f"{where}[{i}]", v, d) for i, (v, d) in
+                     enumerate(zip(value, default, strict=True)))
+    return tuple(value)
+
+
 def _jsonable(value):
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
