@@ -25,6 +25,7 @@ from .fileformat import (  # noqa: E402  (h5py and NumPy only: no JAX import)
     DataFileError,
     DemoFile,
     Episode,
+    UncheckedDataWarning,
     load,
     open_file,
 )
@@ -46,6 +47,7 @@ def __getattr__(name):
 
 __all__ = [
     "FORMAT_VERSION", "STANDARD_SETS", "DataFileError", "DemoFile", "Episode", "Recorder",
-    "__version__", "ensure_standard", "export_episode", "export_minari", "generate", "load",
-    "open_file", "score", "standard_path", "write_goal", "write_goals",
+    "UncheckedDataWarning", "__version__", "ensure_standard", "export_episode",
+    "export_minari", "generate", "load", "open_file", "score", "standard_path",
+    "write_goal", "write_goals",
 ]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 
 from . import __version__
@@ -48,7 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--task", required=True, help="task name, e.g. fold_cloth1")
     g.add_argument("--episodes", required=True, type=_positive_int)
     g.add_argument("--seed", type=_nonneg_int, default=0,
-                   help="seed of the first episode; episode i uses seed + i (default 0)")
+                   help="seed of the first episode; episode i uses seed + i (default 0; "
+                        "every seed in 0 .. 4294967295)")
     g.add_argument("--out", required=True, help="output .h5 file")
     g.add_argument("--policy", choices=("expert", "random"), default="expert")
     g.add_argument("--point-stride", type=_positive_int, default=1, metavar="K",
@@ -219,10 +221,16 @@ COMMANDS = {"generate": _generate, "standard": _standard, "goals": _goals, "insp
             "validate": _validate, "export": _export, "score": _score}
 
 
+def _warn_in_one_line(message, category, *args, **kwargs) -> None:
+    print(f"dax-data: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warn_in_one_line
+            COMMANDS[args.command](args)
     except KeyboardInterrupt:
         print("dax-data: interrupted; completed episodes are on disk, rerun the same command "
               "to resume", file=sys.stderr)

@@ -7,6 +7,7 @@ The layout is documented in the package README ("File format"). In short::
                            created_utc (version 1 files have no ``params``, version 1
                            and 2 files no ``images``)
     /goal                  (N, 3) float32 [m], attribute ``provenance`` (JSON)
+                           (chunked and checksummed like every dataset since version 4)
     /episodes/000000       group per episode, attributes seed, policy, length, score
         actions            (T, A) float32
         observations       (T + 1, O) float32   (the reset observation first)
@@ -26,6 +27,10 @@ atomic-write helper of DaX), so the file on disk is always complete: an interrup
 loses at most the episode it was recording. Nothing is pickled: metadata
 is JSON text in string attributes, data are plain numeric datasets (chunked, gzip with the
 shuffle filter, and a Fletcher-32 checksum per chunk so a corrupted chunk is detected).
+Every dataset of a version 4 file carries that checksum, ``/goal`` included (versions 1 to 3
+stored ``/goal`` contiguous, without one: such files open with an
+:class:`UncheckedDataWarning`). HDF5's own metadata (object headers with the attributes)
+carries checksums of its own in the 1.10 formats used here.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import dataclasses
 import datetime
 import json
 import os
+import warnings
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -51,7 +57,12 @@ FORMAT_NAME = "dax-data/demonstrations"
 #: exported, but not extended (:func:`check_extendable`).
 #: Version 3: the ``images`` attribute (the image modes stored, their size and the camera)
 #: and the optional per-episode datasets ``height`` and ``rgb`` (:data:`IMAGE_DATASETS`).
-FORMAT_VERSION = 3
+#: Version 4: ``/goal`` is chunked, compressed and checksummed like the episode datasets
+#: (every dataset of the file carries a Fletcher-32 checksum; :meth:`DemoFile.verify`
+#: refuses a version 4 file with a dataset that does not).
+FORMAT_VERSION = 4
+#: The first version whose every dataset is checksummed.
+CHECKSUMMED_SINCE = 4
 
 #: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
 #: checked against each other: T steps, A action dim, O observation dim, K point frames,
@@ -79,7 +90,7 @@ EPISODE_ATTRS = ("seed", "policy", "length", "score")
 FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "spec", "units",
               "scene_doc", "generator", "created_utc")
 #: Attributes a file of a given version has beyond :data:`FILE_ATTRS`.
-VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images")}
+VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images"), 4: ("params", "images")}
 JSON_ATTRS = ("versions", "spec", "params", "images", "units", "generator")
 
 #: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
@@ -112,6 +123,11 @@ UNITS = {
 class DataFileError(ValueError):
     """A demonstration file is missing, unreadable, truncated, of another format or a newer
     format version, or does not match what was asked. The message names the file."""
+
+
+class UncheckedDataWarning(UserWarning):
+    """A demonstration file of a format version before 4: its ``/goal`` carries no checksum,
+    so a corrupted goal cannot be detected (the message names the file)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,7 +302,8 @@ def create(path: str | os.PathLike, attrs: dict, goal, goal_provenance: dict) ->
           h5py.File(tmp, "w", libver=LIBVER) as f):
         for key, value in attrs.items():
             f.attrs[key] = json.dumps(value, allow_nan=False) if key in JSON_ATTRS else value
-        ds = f.create_dataset("goal", data=np.asarray(goal, np.float32))
+        _write_array(f, "goal", np.asarray(goal, np.float32))  # checksummed (version 4)
+        ds = f["goal"]
         ds.attrs["provenance"] = json.dumps(_jsonable(goal_provenance))
         ds.attrs["units"] = "m"
         f.create_group("episodes")
@@ -395,6 +412,11 @@ class DemoFile:
             meta[key] = value
         meta.setdefault("images", images_meta())  # versions 1 and 2 hold no images
         self.meta = meta
+        if ver < CHECKSUMMED_SINCE:
+            warnings.warn(f"{self.path}: format version {ver}: /goal carries no checksum, so "
+                          f"a corrupted goal goes unnoticed (the goal is unchecked; record the "
+                          f"file again with this dax-data to check it)",
+                          UncheckedDataWarning, stacklevel=3)
         self.image_modes = tuple(self._check_images(meta["images"]))
         if "goal" not in f or not isinstance(f["goal"], h5py.Dataset):
             self._fail("missing dataset /goal")
@@ -524,8 +546,26 @@ class DemoFile:
 
     def verify(self) -> None:
         """Read every dataset (checking HDF5 checksums) and check values are finite and
-        consistent (score = last r_gt, point_steps increasing and ending at T)."""
-        _ = self.goal
+        consistent (score = last r_gt, point_steps increasing and ending at T). In a version
+        4 file every non-empty dataset must carry a checksum."""
+        datasets = []
+        self._f.visititems(lambda name, obj: datasets.append(name)
+                           if isinstance(obj, h5py.Dataset) else None)
+        for name in datasets:
+            ds = self._f[name]
+            if self.meta["format_version"] >= CHECKSUMMED_SINCE and ds.size and \
+                    not ds.fletcher32:
+                self._fail(f"dataset /{name} carries no checksum (format version "
+                           f"{self.meta['format_version']} checksums every dataset)")
+            try:
+                ds[()]
+            except (OSError, ValueError) as err:
+                parts = name.split("/")
+                if len(parts) == 3 and parts[0] == "episodes" and parts[1].isdigit():
+                    self._fail(f"episode {int(parts[1])}: data unreadable, truncated or "
+                               f"corrupted (dataset {parts[2]!r}: {_short(err)})")
+                self._fail(f"/{name}: data unreadable, truncated or corrupted "
+                           f"({_short(err)})")
         if not np.all(np.isfinite(self.goal)):
             self._fail("/goal contains NaN or inf")
         for k in range(len(self)):

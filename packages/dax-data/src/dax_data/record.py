@@ -21,6 +21,23 @@ from . import fileformat as ff
 from .fileformat import DataFileError
 
 POLICIES = ("expert", "random")
+#: The largest episode seed: ``jax.random.PRNGKey`` holds 32 bits of a seed, so seed
+#: ``2**32 + s`` would give the episodes of seed ``s`` (and a seed beyond 64 bits overflows).
+MAX_SEED = 2**32 - 1
+
+
+def check_seeds(seed, count: int = 1) -> int:
+    """``seed`` if seeds ``seed .. seed + count - 1`` are all ints in ``0 ..``
+    :data:`MAX_SEED`; ``ValueError`` naming the range otherwise."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be an integer, got {type(seed).__name__} {seed!r}")
+    seed = int(seed)
+    last = seed + count - 1
+    if seed < 0 or last > MAX_SEED:
+        span = f"seeds {seed}..{last}" if count > 1 else f"seed {seed}"
+        raise ValueError(f"{span} outside 0..{MAX_SEED}: a PRNGKey holds 32 bits of a seed "
+                         f"(seed 2**32 + s would repeat seed s)")
+    return seed
 
 
 def make_task(name: str, overrides: dict | None = None):
@@ -49,6 +66,9 @@ def parse_overrides(task_name: str, items) -> dict:
     task's scene (``scene.n=6``); ``VALUE`` is read as
     JSON (``6``, ``0.5``, ``true``, ``[1, 2]``) and kept as a string when it is not JSON.
     Scene fields are applied with ``dataclasses.replace`` to the task's default scene.
+    Every value is checked against its field's type (:func:`dax_tasks.check_overrides`:
+    ``scene.n=6.5``, ``lam=abc``, ``horizon=true`` or ``action_low=5`` are refused with a
+    ``ValueError`` naming the key).
     """
     import dataclasses
 
@@ -80,7 +100,16 @@ def parse_overrides(task_name: str, items) -> dict:
         if unknown:
             raise ValueError(f"unknown scene override(s) {unknown} for task {task_name!r}; "
                              f"valid: {sorted(fields)}")
-        top["scene"] = dataclasses.replace(default, **scene)
+        # types first: the scene's own checks compare values (6 < "abc" is a TypeError)
+        from dax_tasks.spec import checked_fields
+
+        checked_fields(default, scene, "scene.")
+        try:
+            top["scene"] = dataclasses.replace(default, **scene)
+        except TypeError as err:
+            raise ValueError(f"scene overrides for task {task_name!r}: {err}") from None
+    dax_tasks.check_overrides(task_name, top)  # types, before anything runs (kept as given:
+    # the file's generator attribute records them as written)
     return top
 
 
@@ -251,7 +280,8 @@ def _check_task(path: Path, f: ff.DemoFile, env) -> None:
 
 def generate(task_name: str, episodes: int, seed: int, out, policy: str = "expert",
              point_stride: int = 1, overrides: dict | None = None,
-             progress: bool = True, obs=("state",), image_size: int = 64) -> dict:
+             progress: bool = True, obs=("state",), image_size: int = 64,
+             lock_wait: float = 0.0) -> dict:
     """Record ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) into ``out``.
 
     ``obs``: the observation modes to store besides the task's ``state`` observation:
@@ -261,13 +291,34 @@ def generate(task_name: str, episodes: int, seed: int, out, policy: str = "exper
     are recorded (an interrupted run resumes; a larger ``episodes`` extends the file). Each
     episode is committed atomically. Returns a summary: episodes recorded now, seconds per
     episode, file size, scores.
+
+    One writer per file: the run holds the file's lock (:func:`dax_tasks.io.exclusive`,
+    ``.<name>.lock`` beside it) from its first look at the file to its last episode, so a
+    second ``generate`` of the same file is refused at once with
+    :class:`dax_tasks.io.FileLockedError` naming the holder (or waits up to ``lock_wait``
+    seconds for it); temporary files a killed writer left are removed only under the lock.
+    Seeds must lie in ``0 ..`` :data:`MAX_SEED`. Arguments are checked before any file is
+    created.
     """
-    if not (isinstance(episodes, int) and episodes > 0):
+    if not (isinstance(episodes, int) and not isinstance(episodes, bool) and episodes > 0):
         raise ValueError(f"episodes must be a positive int, got {episodes!r}")
+    seed = check_seeds(seed, episodes)
     obs, image_size = check_obs(obs), check_image_size(image_size)
     path = Path(out)
     if path.exists() and not path.is_file():
         raise ValueError(f"{path}: exists and is not a file")
+    if not path.parent.is_dir():
+        raise ValueError(f"{path}: directory {path.parent} does not exist")
+    from dax_tasks.io import exclusive
+
+    with exclusive(path, wait=lock_wait):
+        return _generate_locked(task_name, episodes, seed, path, policy, point_stride,
+                                overrides, progress, obs, image_size)
+
+
+def _generate_locked(task_name, episodes, seed, path, policy, point_stride, overrides,
+                     progress, obs, image_size) -> dict:
+    """:func:`generate` while holding the file's lock."""
     args = _generator_args(task_name, seed, policy, point_stride, overrides, obs, image_size)
     if path.exists():  # check the file and the arguments first: they fail fast
         with ff.DemoFile(path) as f:
@@ -334,6 +385,7 @@ def score(task_name: str, seeds: int = 20, seed: int = 0,
     (e.g. ``expert`` for a task without one) and listed under ``"skipped"``."""
     if not (isinstance(seeds, int) and seeds > 0):
         raise ValueError(f"seeds must be a positive int, got {seeds!r}")
+    seed = check_seeds(seed, seeds)
     from dax_tasks.wrappers import VmapWrapper
 
     env = make_task(task_name, overrides=overrides)

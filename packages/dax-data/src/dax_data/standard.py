@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 from pathlib import Path
 
@@ -76,12 +77,14 @@ def cache_dir() -> Path:
 def standard_path(env, name: str, directory=None, image_size: int = IMAGE_SIZE) -> Path:
     """The file of set ``name`` for ``env`` (a :class:`dax_tasks.Env`) in ``directory``
     (default :func:`cache_dir`): ``<task>-<set>-<digest>.h5``, the digest over the spec's
-    fingerprint, the default params and (for image sets) the image size."""
+    fingerprint, the default params, the file format version and (for image sets) the image
+    size."""
     s = get_set(name)
     images = [m for m in s.obs if m in ff.IMAGE_DATASETS]
     key = {"fingerprint": env.spec.fingerprint(),
            "params": ff.params_to_json(env.default_params),
-           "set": dataclasses.asdict(s), "image_size": image_size if images else None}
+           "set": dataclasses.asdict(s), "image_size": image_size if images else None,
+           "format_version": ff.FORMAT_VERSION}
     digest = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
     directory = cache_dir() if directory is None else Path(directory)
     return directory / f"{env.spec.name}-{name}-{digest}.h5"
@@ -109,6 +112,8 @@ def ensure_standard(task: str, name: str, directory=None, overrides: dict | None
             if len(f) >= s.episodes:
                 return path
     path.parent.mkdir(parents=True, exist_ok=True)
+    # another process making the same set: wait for it (the kernel frees its lock when it
+    # exits), then find the set complete
     generate(task, s.episodes, s.seed, path, policy="expert", overrides=overrides,
-             progress=progress, obs=s.obs, image_size=image_size)
+             progress=progress, obs=s.obs, image_size=image_size, lock_wait=math.inf)
     return path
