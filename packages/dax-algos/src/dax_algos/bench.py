@@ -22,10 +22,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
+import json
 import math
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -36,7 +39,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import dax_tasks
-from dax_tasks.io import atomic_write
+from dax_tasks.io import atomic_write, exclusive
 
 from . import common, csvlog, demos, learning, registry, report, trained
 
@@ -87,13 +90,33 @@ def _split(spec) -> list[str]:
 
 def read_rows(path: Path) -> list[dict]:
     """The rows of ``results.csv`` (an incomplete last line, from an interrupted write, is
-    dropped from the file)."""
-    data = csvlog.read_complete(path)
-    rows = list(csv.DictReader(io.StringIO(data)))
-    if rows and set(rows[0]) != set(COLUMNS):
-        raise ValueError(f"{path} has columns {list(rows[0])}, expected {list(COLUMNS)}; "
-                         f"use another --out directory")
-    return [r for r in rows if None not in r.values()]
+    dropped from the file). A file that is not a results file (not text, other columns, a
+    seed that is not an integer) is a ``ValueError`` naming it."""
+    def garbled(problem):
+        return ValueError(f"{path}: not a dax-bench results file ({problem}); use another "
+                          f"--out directory")
+
+    try:  # checked before read_complete cuts an incomplete last line off the file
+        text = path.read_bytes().decode() if path.is_file() else ""
+        header = next(csv.reader([text.split("\n", 1)[0]])) if text else list(COLUMNS)
+    except UnicodeDecodeError:
+        raise garbled("not UTF-8 text") from None
+    except csv.Error as err:
+        raise garbled(f"bad CSV: {err}") from None
+    if set(header) != set(COLUMNS):
+        raise garbled(f"columns {header}, expected {list(COLUMNS)}")
+    try:  # the complete lines (an interrupted write leaves an incomplete last one)
+        rows = list(csv.DictReader(io.StringIO(text[:text.rfind("\n") + 1])))
+    except csv.Error as err:
+        raise garbled(f"bad CSV: {err}") from None
+    rows = [r for r in rows if None not in r.values()]
+    for i, r in enumerate(rows):
+        try:
+            int(r["seed"])
+        except ValueError:
+            raise garbled(f"row {i + 2}: seed {r['seed']!r} is not an integer") from None
+    csvlog.read_complete(path)  # a results file: cut the incomplete line off it now
+    return rows
 
 
 def append_row(path: Path, row: Mapping) -> None:
@@ -155,6 +178,81 @@ def evaluate(out, runnable) -> dict:
     return values
 
 
+RUN_FILE = "run.json"
+
+
+def _canonical(value):
+    """JSON-able form of run overrides (a scene dataclass by class and fields)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {"__class__": type(value).__name__,
+                **{f.name: _canonical(getattr(value, f.name))
+                   for f in dataclasses.fields(value)}}
+    if isinstance(value, Mapping):
+        return {str(k): _canonical(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return repr(value)
+
+
+def check_out(out: Path) -> Path:
+    """``out/results.csv`` once ``out`` is known to be a directory we can write (created if
+    missing) whose results file, report and run file are files if they exist; one
+    ``ValueError`` naming the path otherwise, before any work."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory (--out takes a directory)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"{out}: cannot create the output directory "
+                         f"({err.strerror or err})") from None
+    try:  # a probe: an unwritable directory is found now, not after the first episode
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        raise ValueError(f"{out}: cannot write in the output directory "
+                         f"({err.strerror or err})") from None
+    for name in ("results.csv", "results.md", RUN_FILE):
+        path = out / name
+        if path.exists() and not path.is_file():
+            raise ValueError(f"{path}: exists and is not a file; use another --out directory")
+        if path.exists() and not os.access(path, os.R_OK | os.W_OK):
+            raise ValueError(f"{path}: cannot be read and written")
+    return out / "results.csv"
+
+
+def _check_run(out: Path, rows: list, config: dict) -> None:
+    """Refuse to add to ``out`` results made with other task or method overrides (they
+    would be mixed with, or silently stand in for, this run's); record them on first
+    use in ``out/run.json``."""
+    path = out / RUN_FILE
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+            if not isinstance(old, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as err:  # UnicodeDecodeError and JSONDecodeError too
+            raise ValueError(f"{path}: unreadable run file ({err}); use another --out "
+                             f"directory") from None
+    elif rows:  # results from before run files: runs without overrides (all the CLI makes)
+        old = {"task_overrides": {}, "method_overrides": {}}
+    else:
+        atomic_write(path, json.dumps(config, indent=1, sort_keys=True) + "\n")
+        return
+    for key in ("task_overrides", "method_overrides"):
+        if old.get(key, {}) != config[key]:
+            raise ValueError(
+                f"{out}: holds results made with other {key.replace('_', ' ')} "
+                f"({json.dumps(old.get(key, {}), sort_keys=True)[:200]}, now "
+                f"{json.dumps(config[key], sort_keys=True)[:200]}); use another --out "
+                f"directory")
+    if not path.exists():
+        atomic_write(path, json.dumps(config, indent=1, sort_keys=True) + "\n")
+
+
 def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
@@ -165,7 +263,14 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     ``dax_tasks.make`` (e.g. a coarser scene for tests). method_overrides: ``{method:
     {config field: value}}`` on top of the budget. cache_goal: passed to
     ``dax_tasks.make``. demo_dir: where the imitation methods' demonstration sets are made
-    or reused (default ``$DAX_CACHE_DIR/demos``, :func:`dax_data.standard.cache_dir`)."""
+    or reused (default ``$DAX_CACHE_DIR/demos``, :func:`dax_data.standard.cache_dir`).
+
+    Before any work: ``out`` must be (or become) a writable directory whose
+    ``results.csv`` is a results file (:func:`check_out`, :func:`read_rows`), no other run
+    may be writing it (its lock, ``.results.csv.lock``, :func:`dax_tasks.io.exclusive`:
+    ``FileLockedError`` naming the holder), and results already there must have been made
+    with the same task and method overrides (recorded in ``run.json``); each problem is one
+    error naming the path."""
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
     if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
@@ -174,9 +279,22 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     task_overrides = dict(task_overrides or {})
     method_overrides = dict(method_overrides or {})
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "results.csv"
-    done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in read_rows(csv_path)}
+    csv_path = check_out(out)
+    config = {"task_overrides": _canonical(task_overrides),
+              "method_overrides": _canonical(method_overrides)}
+    with exclusive(csv_path):
+        rows = read_rows(csv_path)
+        _check_run(out, rows, config)
+        return _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, rows,
+                                task_overrides, method_overrides, cache_goal, progress,
+                                demo_dir)
+
+
+def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, rows,
+                     task_overrides, method_overrides, cache_goal, progress,
+                     demo_dir) -> list[dict]:
+    """:func:`run_grid` while holding the results' lock."""
+    done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows}
     todo = [(t, m, s) for t in task_names for m in method_names for s in range(seeds)
             if (t, m, s, budget) not in done]
 
@@ -346,8 +464,9 @@ def main(argv=None) -> int:
     try:
         rows = run_grid(args.tasks, args.methods, args.seeds, args.out, quick=args.quick,
                         progress=not args.no_progress, demo_dir=args.demos)
-    except ValueError as err:
-        print(f"dax-bench: error: {err}", file=sys.stderr)
+    except (ValueError, OSError) as err:  # FileLockedError is an OSError
+        msg = " ".join(str(err).split()) or type(err).__name__
+        print(f"dax-bench: error: {msg}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"dax-bench: interrupted; finished runs are in {Path(args.out) / 'results.csv'}"
