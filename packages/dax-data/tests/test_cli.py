@@ -179,8 +179,8 @@ def test_expert_beats_random_on_fold_cloth1(env):
     assert expert["mean"] > 0.8, f"expected expert final r_gt > 0.8, got {expert['mean']:.3f}"
 
 
-SMALL = ["--override", "scene.n=6", "--override", "scene.settle_substeps=100",
-         "--override", "substeps=160"]
+SMALL = ["--override", "scene.n=6", "--override", "scene.settle_substeps=200",
+         "--override", "substeps=400"]  # the README example
 
 
 def test_overrides_make_a_small_scene_and_are_part_of_the_arguments(env, tmp_path):
@@ -189,7 +189,7 @@ def test_overrides_make_a_small_scene_and_are_part_of_the_arguments(env, tmp_pat
     proc = run(env, *args, *SMALL)
     assert proc.returncode == 0, proc.stderr
     with dax_data.open_file(path) as f:
-        assert f.meta["spec"]["scene"]["n"] == 6 and f.meta["spec"]["substeps"] == 160
+        assert f.meta["spec"]["scene"]["n"] == 6 and f.meta["spec"]["substeps"] == 400
         assert f.episode(0).points.shape[1:] == (36, 3)
     proc = run(env, *args, *SMALL[:4])  # substeps differs from the file's
     assert_one_line_error(proc, str(path), "overrides=")
