@@ -2,9 +2,9 @@
 
 * one writer per file: a second ``generate`` of a file is refused at once (two real
   processes), and a refused run leaves the first one's temporary file alone;
-* every dataset is checksummed (format version 4): a flipped bit anywhere, ``/goal``
-  and the pictures included, is caught by ``validate``; older files warn that their goal
-  is unchecked;
+* every dataset and every attribute is checksummed (format version 4): a flipped bit
+  anywhere, ``/goal`` and the pictures included, is caught by ``validate``; older files
+  warn that their goal is unchecked;
 * seeds beyond what a ``PRNGKey`` holds are refused before any file exists;
 * overrides of the wrong type are refused in one line, before anything runs.
 """
@@ -102,6 +102,61 @@ def test_every_dataset_is_checksummed_and_a_flipped_bit_anywhere_is_caught(small
     one_line_error(capsys, ["validate", copy], str(copy), "/goal: data unreadable")
 
 
+def _attributes(path):
+    out = []
+    with h5py.File(path, "r") as f:
+        names = [""]
+        f.visit(names.append)
+        for name in names:
+            obj = f[name] if name else f
+            out += [(name, key) for key in obj.attrs]
+    return out
+
+
+def _flipped(value):
+    """``value`` with one bit flipped (a number's lowest, a text's middle character's)."""
+    if isinstance(value, (bytes, str)):
+        text = value.decode() if isinstance(value, bytes) else value
+        i = len(text) // 2
+        return text[:i] + chr(ord(text[i]) ^ 1) + text[i + 1:]
+    if np.issubdtype(np.asarray(value).dtype, np.integer):
+        return np.asarray(value) ^ 1
+    bits = np.asarray(value, np.float64).view(np.int64) ^ 1
+    return bits.view(np.float64)
+
+
+def test_every_attribute_is_checksummed_a_changed_value_anywhere_is_caught(small, tmp_path):
+    """Attribute values need not be covered by HDF5's own checksums (text lives in the global
+    heap): the file's ``checksum`` attribute covers them all."""
+    attributes = _attributes(small)
+    assert ("", "spec") in attributes and ("goal", "provenance") in attributes and \
+        ("episodes/000000", "score") in attributes, attributes
+    missed = []
+    for name, key in attributes:
+        copy = tmp_path / "attr.h5"
+        shutil.copyfile(small, copy)
+        with h5py.File(copy, "a") as f:
+            obj = f[name] if name else f
+            obj.attrs[key] = _flipped(obj.attrs[key])
+        try:
+            with dax_data.open_file(copy) as f:
+                f.verify()
+        except dax_data.DataFileError:
+            continue
+        missed.append(f"/{name} {key}")
+    assert not missed, f"a changed attribute went unnoticed: {missed}"
+    # a bit flipped in the file's bytes, inside the spec's text
+    copy = tmp_path / "raw.h5"
+    shutil.copyfile(small, copy)
+    raw = bytearray(copy.read_bytes())
+    at = raw.find(b'"substeps"')
+    assert at > 0 and raw.count(b'"substeps"') == 1
+    raw[at + 3] ^= 0x01
+    copy.write_bytes(bytes(raw))
+    with pytest.raises(dax_data.DataFileError, match="metadata checksum mismatch"):
+        dax_data.open_file(copy)
+
+
 def _with_contiguous_goal(path, version=None):
     """Rewrite ``/goal`` without a checksum, as format versions 1 to 3 stored it."""
     with h5py.File(path, "a") as f:
@@ -111,6 +166,9 @@ def _with_contiguous_goal(path, version=None):
         ds.attrs["provenance"], ds.attrs["units"] = prov, "m"
         if version is not None:
             f.attrs["format_version"] = version
+            del f.attrs["checksum"]
+        else:
+            ff.seal(f)  # only the goal's checksum is missing
 
 
 def test_version_3_file_opens_with_a_warning_that_its_goal_is_unchecked(small, tmp_path,
@@ -118,8 +176,8 @@ def test_version_3_file_opens_with_a_warning_that_its_goal_is_unchecked(small, t
     old = tmp_path / "v3.h5"
     shutil.copyfile(small, old)
     _with_contiguous_goal(old, version=3)
-    with pytest.warns(ff.UncheckedDataWarning, match="v3.h5: format version 3: /goal carries "
-                                                     "no checksum"):
+    with pytest.warns(ff.UncheckedDataWarning, match="v3.h5: format version 3: /goal and the "
+                                                     "attributes carry no checksum"):
         f = dax_data.open_file(old)
     with f:
         f.verify()

@@ -29,14 +29,18 @@ is JSON text in string attributes, data are plain numeric datasets (chunked, gzi
 shuffle filter, and a Fletcher-32 checksum per chunk so a corrupted chunk is detected).
 Every dataset of a version 4 file carries that checksum, ``/goal`` included (versions 1 to 3
 stored ``/goal`` contiguous, without one: such files open with an
-:class:`UncheckedDataWarning`). HDF5's own metadata (object headers with the attributes)
-carries checksums of its own in the 1.10 formats used here.
+:class:`UncheckedDataWarning`). HDF5's own structural metadata (object headers, chunk
+indexes) carries checksums in the 1.10 formats used here, but attribute *values* need not
+(text attributes live in HDF5's global heap, which has none): a version 4 file therefore
+also stores ``checksum``, a SHA-256 over every attribute of the file
+(:func:`attrs_digest`), updated by every write and checked on open.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import hashlib
 import json
 import os
 import warnings
@@ -61,8 +65,10 @@ FORMAT_NAME = "dax-data/demonstrations"
 #: (every dataset of the file carries a Fletcher-32 checksum; :meth:`DemoFile.verify`
 #: refuses a version 4 file with a dataset that does not).
 FORMAT_VERSION = 4
-#: The first version whose every dataset is checksummed.
+#: The first version whose every dataset and every attribute is checksummed.
 CHECKSUMMED_SINCE = 4
+#: The file attribute holding :func:`attrs_digest` (version 4).
+CHECKSUM_ATTR = "checksum"
 
 #: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
 #: checked against each other: T steps, A action dim, O observation dim, K point frames,
@@ -90,7 +96,8 @@ EPISODE_ATTRS = ("seed", "policy", "length", "score")
 FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "spec", "units",
               "scene_doc", "generator", "created_utc")
 #: Attributes a file of a given version has beyond :data:`FILE_ATTRS`.
-VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images"), 4: ("params", "images")}
+VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images"),
+                 4: ("params", "images", CHECKSUM_ATTR)}
 JSON_ATTRS = ("versions", "spec", "params", "images", "units", "generator")
 
 #: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
@@ -277,6 +284,43 @@ _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
                 "fletcher32": True}
 
 
+def _attr_value(value):
+    """An attribute's value as JSON-able Python (for :func:`attrs_digest`)."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, np.ndarray):
+        return [_attr_value(v) for v in value.tolist()] if value.ndim else \
+            _attr_value(value.item())
+    if isinstance(value, bytes):
+        return value.decode(errors="replace")
+    return value if isinstance(value, (str, int, float, bool, list)) or value is None \
+        else repr(value)
+
+
+def attrs_digest(f: h5py.File) -> str:
+    """``"sha256:<hex>"`` over every attribute of the file (path, name and value of each,
+    in name order), but the checksum attribute itself: what the ``checksum`` attribute of a
+    version 4 file holds."""
+    names = []
+    f.visit(names.append)
+    h = hashlib.sha256()
+    for path in ["", *sorted(names)]:
+        obj = f[path] if path else f
+        for key in sorted(obj.attrs):
+            if not path and key == CHECKSUM_ATTR:
+                continue
+            h.update(json.dumps(["/" + path, key, _attr_value(obj.attrs[key])]).encode())
+            h.update(b"\n")
+    return "sha256:" + h.hexdigest()
+
+
+def seal(f: h5py.File) -> None:
+    """Store :func:`attrs_digest` in a version 4 file opened for writing (after any change
+    to an attribute, an episode or the goal)."""
+    if int(f.attrs.get("format_version", 0)) >= CHECKSUMMED_SINCE:
+        f.attrs[CHECKSUM_ATTR] = attrs_digest(f)
+
+
 def _write_array(group: h5py.Group, name: str, data, chunks=True) -> None:
     data = np.ascontiguousarray(data)
     if data.size == 0:
@@ -307,6 +351,7 @@ def create(path: str | os.PathLike, attrs: dict, goal, goal_provenance: dict) ->
         ds.attrs["provenance"] = json.dumps(_jsonable(goal_provenance))
         ds.attrs["units"] = "m"
         f.create_group("episodes")
+        seal(f)
     return path
 
 
@@ -346,6 +391,7 @@ def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
         for key in modes:
             data = np.asarray(arrays[key], IMAGE_DATASETS[key][0])
             _write_array(g, key, data, chunks=(1, *data.shape[1:]))
+        seal(f)
 
 
 # ---------------------------------------------------------------------- reading
@@ -413,9 +459,9 @@ class DemoFile:
         meta.setdefault("images", images_meta())  # versions 1 and 2 hold no images
         self.meta = meta
         if ver < CHECKSUMMED_SINCE:
-            warnings.warn(f"{self.path}: format version {ver}: /goal carries no checksum, so "
-                          f"a corrupted goal goes unnoticed (the goal is unchecked; record the "
-                          f"file again with this dax-data to check it)",
+            warnings.warn(f"{self.path}: format version {ver}: /goal and the attributes "
+                          f"carry no checksum, so their corruption goes unnoticed (the goal is "
+                          f"unchecked; record the file again with this dax-data to check it)",
                           UncheckedDataWarning, stacklevel=3)
         self.image_modes = tuple(self._check_images(meta["images"]))
         if "goal" not in f or not isinstance(f["goal"], h5py.Dataset):
@@ -467,6 +513,11 @@ class DemoFile:
                            f"{goal.shape[0]}")
             act_dim, obs_dim, n_points = sizes["A"], sizes["O"], sizes["N"]
         self._names = names
+        if ver >= CHECKSUMMED_SINCE:
+            stored, computed = meta[CHECKSUM_ATTR], attrs_digest(f)
+            if stored != computed:
+                self._fail(f"metadata checksum mismatch: an attribute was changed or "
+                           f"corrupted (stored {stored[:19]}..., computed {computed[:19]}...)")
 
     def _check_images(self, images) -> list:
         """The image modes of a valid ``images`` attribute (see :func:`images_meta`)."""

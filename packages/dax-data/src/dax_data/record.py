@@ -374,6 +374,7 @@ def _set_target(path: Path, args: dict, episodes: int) -> None:
     with (atomic_path(path, copy_existing=True) as tmp,
           h5py.File(tmp, "a", libver=ff.LIBVER) as h):
         h.attrs["generator"] = json.dumps({**args, "episodes": episodes})
+        ff.seal(h)
 
 
 # ---------------------------------------------------------------------- scoring
