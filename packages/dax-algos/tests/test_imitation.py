@@ -15,6 +15,7 @@ from algos_helpers import cheap_cloth_overrides
 import dax_data
 import dax_tasks
 from dax_algos import bench, common, demos, ild, registry, rl, toy, trained, transporter
+from dax_algos.tools import eval_trained
 
 # ----------------------------------------------------------------------------- Transporter
 
@@ -255,5 +256,10 @@ def test_runner_makes_demonstrations_trains_evaluates_and_keeps_policies(tmp_pat
                                              **kw["method_overrides"][method])
         act, policy = trained.load_trained(path, env, method, config)
         assert policy.params is not None
+        # replaying the saved policy rollout by rollout gives the row's score back
+        rec = eval_trained.evaluate_file(path, "fold_cloth1", method, 0, env=env)
+        row = next(r for r in rows if r["method"] == method)
+        assert rec["n_rollouts"] == 2 and abs(rec["mean"] - float(row["score"])) < 1e-5, (
+            rec, row["score"])
     assert not (tmp_path / "out" / "learning_fold_cloth1.csv").read_text().count(
         "transporter"), "Transporter trains on demonstrations: no learning-curve rows"

@@ -171,13 +171,15 @@ class Policy(NamedTuple):
 
 
 def make_evaluate(env, act: Callable, n_rollouts: int,
-                  inputs: Callable | None = None) -> Callable:
+                  inputs: Callable | None = None, per_rollout: bool = False) -> Callable:
     """``evaluate(policy, key, params) -> common.EpisodeOutput``: ``n_rollouts`` episodes of
     the deterministic policy ``act(policy, inputs(obs, t)) -> z`` from starts drawn from
     ``key``, rewards with ``params`` (r_gt only for the task's default params); ``inputs``
     defaults to :func:`features`. The output's per-step fields are means over the rollouts
     (``finite``: all of them), ``actions`` are those of the first rollout and ``score`` the
-    mean final-step r_gt."""
+    mean final-step r_gt. With ``per_rollout`` nothing is averaged: every field has the
+    rollouts as its first axis (``score``: each rollout's final-step r_gt), for a standard
+    error over the evaluation starts."""
     horizon = env.horizon
     if inputs is None:
         def inputs(obs, t):
@@ -201,6 +203,10 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
         keys = jax.random.split(key, n_rollouts)
         actions, reward, r_gt, dist, finite = jax.vmap(one, in_axes=(None, 0, None))(
             policy, keys, params)
+        if per_rollout:
+            return common.EpisodeOutput(score=r_gt[:, -1], r_gt=r_gt, reward=reward,
+                                        distance=dist, finite=finite, actions=actions,
+                                        stats=None)
         return common.EpisodeOutput(
             score=jnp.mean(r_gt[:, -1]), r_gt=jnp.mean(r_gt, 0), reward=jnp.mean(reward, 0),
             distance=jnp.mean(dist, 0), finite=jnp.all(finite, 0), actions=actions[0],

@@ -501,7 +501,9 @@ def make_train(env, config: TransporterConfig):
     return train
 
 
-def make_evaluate(env, config: TransporterConfig):
-    """Evaluation rollouts of the trained networks on the pictures they see."""
+def make_evaluate(env, config: TransporterConfig, per_rollout: bool = False):
+    """Evaluation rollouts of the trained networks on the pictures they see (see
+    :func:`dax_algos.rl.make_evaluate` for ``per_rollout``)."""
     return rl.make_evaluate(observation_env(env, config), make_act(env, config),
-                            config.n_eval, inputs=lambda obs, t: obs)
+                            config.n_eval, inputs=lambda obs, t: obs,
+                            per_rollout=per_rollout)

@@ -18,7 +18,6 @@ The demonstrations come from the standard sets (made or reused in ``--demos``).
 from __future__ import annotations
 
 import argparse
-import ast
 import math
 import sys
 
@@ -27,8 +26,9 @@ import jax
 import dax_tasks
 from dax_physics.tools.timing import emit, median_time, peak_rss_mb, timed_compile
 
-from .. import demos, registry, transporter
+from .. import demos, registry, rl, transporter
 from .bench_rl import measure as measure_updates
+from .bench_rl import parse_sets
 
 
 def _data(env, method, config, demo_dir):
@@ -59,7 +59,7 @@ def measure_transporter(task: str, method: str, reps: int = 3, overrides=None,
             params = compiled(jax.random.PRNGKey(0), data)[0]
     epoch_s = max((times[3] - times[1]) / 2, 1e-9)
     act = jax.jit(transporter.make_act(env, base))
-    policy = transporter.rl.Policy(params, None)
+    policy = rl.Policy(params, None)
     obs = data.obs[0]
     act_compiled, act_compile_s = timed_compile(act, policy, obs)
     act_s, _ = median_time(lambda: act_compiled(policy, obs), 20, min_time=1.0)
@@ -84,10 +84,7 @@ def main(argv=None) -> int:
                    help="config override (Python literal), e.g. --set train_steps=500")
     p.add_argument("--json", action="store_true", help="one JSON line per measurement")
     args = p.parse_args(argv)
-    overrides = {}
-    for item in args.set:
-        name, _, value = item.partition("=")
-        overrides[name] = ast.literal_eval(value)
+    overrides = parse_sets(args.set)
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
             print(f"{task} / {method} ...", file=sys.stderr)

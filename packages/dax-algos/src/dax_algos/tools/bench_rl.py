@@ -70,6 +70,15 @@ def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None
     return record
 
 
+def parse_sets(items) -> dict:
+    """Config overrides from ``--set FIELD=VALUE`` items (VALUE a Python literal)."""
+    overrides = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        overrides[name] = ast.literal_eval(value)
+    return overrides
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m dax_algos.tools.bench_rl",
                                 description=__doc__.split("\n\n")[0])
@@ -80,10 +89,7 @@ def main(argv=None) -> int:
                    help="config override (Python literal), e.g. --set num_envs=64")
     p.add_argument("--json", action="store_true", help="one JSON line per measurement")
     args = p.parse_args(argv)
-    overrides = {}
-    for item in args.set:
-        name, _, value = item.partition("=")
-        overrides[name] = ast.literal_eval(value)
+    overrides = parse_sets(args.set)
     for task in args.tasks.split(","):
         for method in args.methods.split(","):
             print(f"{task} / {method} ...", file=sys.stderr)

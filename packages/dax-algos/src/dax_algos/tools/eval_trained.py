@@ -1,0 +1,100 @@
+"""Re-evaluate the policies a ``dax-bench run`` saved, rollout by rollout: mean and
+standard error of the final-step r_gt over the evaluation starts.
+
+A learner's results row holds the mean of its ``n_eval`` evaluation rollouts (20 at the
+full budget); with one training seed the spread across rows says nothing, so this tool
+loads each ``policies/<task>/<method>/seed<k>.msgpack`` under ``--out``, replays the same
+evaluation (the same starts, ``fold_in(PRNGKey(k), 0)``, the task's default params) and
+prints, per file, the mean ± SE over the rollouts beside the row's score (they agree to
+float32 round-off: the row was computed under ``vmap`` over the training seeds).
+
+    python -m dax_algos.tools.eval_trained --out results --json > eval.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import dax_tasks
+
+from .. import policy_io, registry, rl, trained
+
+
+def evaluate_file(path: Path, task: str, method: str, seed: int, env=None) -> dict:
+    """Per-rollout evaluation of one saved policy (see the module docstring) on ``env``
+    (default: ``dax_tasks.make(task)``, the runner's task when it had no overrides)."""
+    env = dax_tasks.make(task) if env is None else env
+    meta = policy_io.read_meta(path)
+    m = registry.get(method)
+    config = trained._config_from_json(m.config_cls, meta["config"])
+    act, policy = trained.load_trained(path, env, method, config)
+    module = m.learner
+    if hasattr(module, "make_evaluate"):
+        evaluate = module.make_evaluate(env, config, per_rollout=True)
+    else:
+        evaluate = rl.make_evaluate(env, act, config.n_eval, per_rollout=True)
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), 0)
+    out = jax.device_get(jax.jit(evaluate)(policy, key, env.default_params))
+    scores = np.asarray(out.score, np.float64)
+    n = scores.size
+    return dict(task=task, method=method, seed=seed, n_rollouts=n,
+                mean=float(scores.mean()),
+                se=float(scores.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan"),
+                min=float(scores.min()), max=float(scores.max()),
+                finite=bool(np.all(out.finite)), scores=[round(float(x), 5) for x in scores])
+
+
+def _rows(path: Path) -> dict:
+    """The results rows by (task, method, seed), read without touching the file (a run may
+    be appending to it)."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if None not in r.values()]
+    return {(r.get("task"), r.get("method"), r.get("seed")): r for r in rows}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m dax_algos.tools.eval_trained",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True, help="the dax-bench output directory")
+    p.add_argument("--tasks", default=None, help="comma-separated (default: every task)")
+    p.add_argument("--methods", default=None, help="comma-separated (default: every one)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    args = p.parse_args(argv)
+    out = Path(args.out)
+    root = out / "policies"
+    if not root.is_dir():
+        print(f"eval_trained: {root}: no such directory (run dax-bench with --out {out})",
+              file=sys.stderr)
+        return 2
+    tasks = set(args.tasks.split(",")) if args.tasks else None
+    methods = set(args.methods.split(",")) if args.methods else None
+    rows = _rows(out / "results.csv")
+    for path in sorted(root.glob("*/*/seed*.msgpack")):
+        task, method = path.parent.parent.name, path.parent.name
+        if (tasks and task not in tasks) or (methods and method not in methods):
+            continue
+        seed = int(path.stem.removeprefix("seed").split(".")[0])
+        rec = evaluate_file(path, task, method, seed)
+        row = rows.get((task, method, str(seed)))
+        rec["row_score"] = float(row["score"]) if row and row.get("score") else None
+        if args.json:
+            print(json.dumps(rec), flush=True)
+        else:
+            print(f"{task:14s} {method:16s} seed {seed}: {rec['mean']:.3f} ± {rec['se']:.3f}"
+                  f" over {rec['n_rollouts']} rollouts (row: {rec['row_score']})", flush=True)
+        jax.clear_caches()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
