@@ -32,7 +32,7 @@ import numpy as np
 import dax_tasks
 from dax_tasks.io import atomic_write
 
-from .. import demos, registry, report
+from .. import demos, registry, report, rl
 
 WEIGHTINGS = {
     "flat": dict(weighting="flat"),
@@ -61,17 +61,33 @@ def run(task: str, seeds: int, budget: str = "full", names=tuple(WEIGHTINGS),
         wall = (time.perf_counter() - t0) / seeds
         scores = np.asarray(out.episode.score, np.float64)
         mean, se = report.mean_se(scores)
+        rollouts = rollout_scores(env, config, out.policy, keys)
         records.append({
             "task": task, "weighting": name, "config": {k: v for k, v in
                                                         WEIGHTINGS[name].items()},
             "budget": budget, "seeds": seeds, "score_mean": mean, "score_se": se,
             "scores": scores.tolist(),
+            "rollout_scores": rollouts.tolist(),
+            "rollout_se": report.mean_se(rollouts.ravel())[1],
             "loss_per_update": np.asarray(out.metrics.loss).mean(0).tolist(),
             "train_score_per_update": np.nanmean(np.asarray(out.metrics.score), 0).tolist(),
             "nonfinite_grads": int(np.sum(out.metrics.nonfinite)),
             "seconds_per_seed": round(wall, 2), "env_steps": runnable.env_steps})
         print(json.dumps(records[-1]), flush=True)
     return records
+
+
+def rollout_scores(env, config, policies, keys) -> np.ndarray:
+    """``(seeds, n_eval)`` final-step r_gt of every evaluation rollout of the trained
+    ``policies`` (batched over seeds), replayed as the runner evaluates (same starts, under
+    ``vmap`` over the seeds): the SE over the evaluation starts, the only spread there is
+    with one training seed."""
+    act = registry.get("ild").learner.make_act(env, config)
+    evaluate = rl.make_evaluate(env, act, config.n_eval, per_rollout=True)
+    starts = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
+    out = jax.jit(jax.vmap(evaluate, in_axes=(0, 0, None)))(policies, starts,
+                                                            env.default_params)
+    return np.asarray(jax.device_get(out.score), np.float64)
 
 
 def chart(records: list[dict], path) -> Path:
@@ -83,7 +99,9 @@ def chart(records: list[dict], path) -> Path:
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 4))
     names = [r["weighting"] for r in records]
     means = [r["score_mean"] for r in records]
-    ses = [0.0 if not np.isfinite(r["score_se"]) else r["score_se"] for r in records]
+    # one seed: the error bar is the SE over its evaluation rollouts
+    ses = [r["score_se"] if np.isfinite(r["score_se"]) else r.get("rollout_se", 0.0)
+           for r in records]
     ax.bar(names, means, yerr=ses, capsize=4, color=[f"C{i}" for i in range(len(names))])
     for i, r in enumerate(records):
         ax.plot([i] * len(r["scores"]), r["scores"], "k.", alpha=0.5)
