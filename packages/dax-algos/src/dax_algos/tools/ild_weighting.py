@@ -118,8 +118,10 @@ def chart(records: list[dict], path) -> Path:
     ax2.legend(fontsize=8)
     ax2.grid(True, alpha=0.3)
     r0 = records[0]
+    spread = ("mean ± SE over seeds, dots: seeds" if r0["seeds"] > 1 else
+              "one seed, mean ± SE over its evaluation rollouts")
     fig.suptitle(f"ILD on {r0['task']}: weighting of the object and end-effector terms "
-                 f"({r0['seeds']} seeds, {r0['budget']} budget; mean ± SE, dots: seeds)")
+                 f"({r0['budget']} budget; {spread})")
     fig.tight_layout()
     path = Path(path)
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=100))
