@@ -21,6 +21,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from dax_tasks.sharding import shard_batch
+
 from . import common
 
 
@@ -59,7 +61,9 @@ def cem_optimise(value_fn, mean, key, config: CEMConfig):
     """Maximise ``value_fn(z)`` over ``z`` in [-1, 1]^shape by CEM from ``mean``.
 
     Returns ``(best_z, best_value)``. ``value_fn`` is vmapped over the population; a
-    non-finite value ranks last. Pure and jittable."""
+    non-finite value ranks last. With several devices the population (the samples and
+    their values) is split over them (:func:`dax_tasks.sharding.shard_batch`; a
+    population that is a multiple of the device count). Pure and jittable."""
     pop, n_elite = config.population, config.elites
     batched = jax.vmap(value_fn)
     std0 = jnp.full_like(mean, config.init_std)
@@ -67,8 +71,8 @@ def cem_optimise(value_fn, mean, key, config: CEMConfig):
     def iteration(carry, k):
         mean, std, best_z, best_v = carry
         eps = jax.random.normal(k, (pop, *mean.shape), mean.dtype)
-        z = jnp.clip(mean + std * eps, -1.0, 1.0).at[0].set(mean)
-        v = batched(z)
+        z = shard_batch(jnp.clip(mean + std * eps, -1.0, 1.0).at[0].set(mean))
+        v = shard_batch(batched(z))
         v = jnp.where(jnp.isfinite(v), v, -jnp.inf)
         top_v, idx = jax.lax.top_k(v, n_elite)
         elite = z[idx]

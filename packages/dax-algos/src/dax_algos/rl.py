@@ -30,6 +30,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from dax_tasks.sharding import shard_batch
+
 from . import common
 
 LOG_2PI = float(jnp.log(2.0 * jnp.pi))
@@ -200,7 +202,7 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
         return out
 
     def evaluate(policy, key, params):
-        keys = jax.random.split(key, n_rollouts)
+        keys = shard_batch(jax.random.split(key, n_rollouts))  # over the devices
         actions, reward, r_gt, dist, finite = jax.vmap(one, in_axes=(None, 0, None))(
             policy, keys, params)
         if per_rollout:

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import render
+from .sharding import shard_batch
 from .spec import Box
 
 #: Observation modes of :class:`ObservationMode`.
@@ -81,6 +82,10 @@ class VmapWrapper(Wrapper):
     axis on every leaf; domain randomisation), and ``default_params`` is the default
     broadcast to ``batch_size``; otherwise one params is shared by the batch.
     ``expert_action(states, params)`` is batched the same way.
+
+    With more than one device the batch is split over them (:mod:`dax_tasks.sharding`:
+    keys, states, actions and every output along the batch axis, when the batch size is a
+    multiple of the device count); nothing changes for the caller.
     """
 
     def __init__(self, env, batch_size: int | None = None, batch_params: bool = False):
@@ -111,19 +116,22 @@ class VmapWrapper(Wrapper):
                 raise ValueError("VmapWrapper.reset got one key but no batch_size; pass a "
                                  "batch of keys or set batch_size")
             key = jax.random.split(key, self.batch_size)
-        return jax.vmap(self.env.reset, in_axes=(0, self._p_axis))(key, self._params(params))
+        key = shard_batch(key)
+        return shard_batch(jax.vmap(self.env.reset, in_axes=(0, self._p_axis))(
+            key, self._params(params)))
 
     def step(self, state, action, params=None):
         want = (jnp.shape(state.t)[0], self.spec.action_dim)
         if jnp.shape(action) != want:
             raise ValueError(f"{self.spec.name}: expected a batch of {self.spec.action_kind} "
                              f"actions of shape {want}, got {jnp.shape(action)}")
-        return jax.vmap(self.env.step, in_axes=(0, 0, self._p_axis))(
-            state, action, self._params(params))
+        state, action = shard_batch((state, action))
+        return shard_batch(jax.vmap(self.env.step, in_axes=(0, 0, self._p_axis))(
+            state, action, self._params(params)))
 
     def expert_action(self, state, params=None):
-        return jax.vmap(self.env.expert_action, in_axes=(0, self._p_axis))(
-            state, self._params(params))
+        return shard_batch(jax.vmap(self.env.expert_action, in_axes=(0, self._p_axis))(
+            shard_batch(state), self._params(params)))
 
 
 class AutoReset(Wrapper):
