@@ -63,17 +63,10 @@ def initialize(coordinator: str, num_processes: int, process_id: int,
                                process_id=process_id, initialization_timeout=timeout_s)
 
 
-def rollout_gradient(env, batch: int, steps: int, seed: int = 0) -> dict:
-    """``batch`` rollouts of ``env`` for ``steps`` steps, forward and backward, split over
-    every device of every process (:func:`dax_tasks.sharding.shard_batch`).
-
-    Starts and uniform random actions come from ``PRNGKey(seed)`` inside one jitted
-    program (the same numbers on any number of devices). Returns NumPy arrays that every
-    process holds whole: ``return`` (the summed reward of the batch), ``rewards``
-    (batch, steps), ``final_r_gt`` (batch,) and ``grad`` (batch, steps, action_dim), the
-    gradient of ``return`` wrt the actions."""
-    from jax.experimental import multihost_utils
-
+def rollout_gradient_fn(env, batch: int, steps: int):
+    """The jitted job of :func:`rollout_gradient`: ``job(key) -> dict`` of global arrays
+    (split over every device of every process), for benchmarks that compile and time it
+    apart (``benchmarks/scaling.py``)."""
     from .wrappers import VmapWrapper
 
     for name, value in (("batch", batch), ("steps", steps)):
@@ -104,7 +97,21 @@ def rollout_gradient(env, batch: int, steps: int, seed: int = 0) -> dict:
         return {"return": ret, "rewards": shard_batch(rewards),
                 "final_r_gt": shard_batch(final_r_gt), "grad": shard_batch(grad)}
 
-    out = jax.jit(job)(jax.random.PRNGKey(seed))
+    return jax.jit(job)
+
+
+def rollout_gradient(env, batch: int, steps: int, seed: int = 0) -> dict:
+    """``batch`` rollouts of ``env`` for ``steps`` steps, forward and backward, split over
+    every device of every process (:func:`dax_tasks.sharding.shard_batch`).
+
+    Starts and uniform random actions come from ``PRNGKey(seed)`` inside one jitted
+    program (the same numbers on any number of devices). Returns NumPy arrays that every
+    process holds whole: ``return`` (the summed reward of the batch), ``rewards``
+    (batch, steps), ``final_r_gt`` (batch,) and ``grad`` (batch, steps, action_dim), the
+    gradient of ``return`` wrt the actions."""
+    from jax.experimental import multihost_utils
+
+    out = rollout_gradient_fn(env, batch, steps)(jax.random.PRNGKey(seed))
     out = multihost_utils.process_allgather(out, tiled=True)
     return {k: np.asarray(v) for k, v in out.items()}
 
