@@ -78,10 +78,11 @@ def _num(v, fmt="{:.3g}") -> str:
     return "" if math.isnan(x) else fmt.format(x)
 
 
-def _table(head: Sequence[str], body: Iterable[Sequence], name_cols: int = 1) -> list[str]:
+def _table(head: Sequence[str], body: Iterable[Sequence], name_cols: int = 1,
+           table_id: str | None = None) -> list[str]:
     """An HTML table; cells are text, or ``(text, css_class)``; the first ``name_cols``
     columns are left-aligned names."""
-    lines = ["<table>", "<tr>" + "".join(
+    lines = [f'<table id="{table_id}">' if table_id else "<table>", "<tr>" + "".join(
         f'<th{" class=name" if i < name_cols else ""}>{_e(h)}</th>'
         for i, h in enumerate(head)) + "</tr>"]
     for row in body:
@@ -111,25 +112,26 @@ def best_methods(rows, task: str) -> set:
 
 
 def score_table(rows, tasks, methods) -> list[str]:
+    """One row per task, one column per method; the best mean of each task marked."""
     groups = report._group(rows)
-    best = {t: best_methods(rows, t) for t in tasks}
     body = []
-    for m in methods:
-        cells = [m]
-        for t in tasks:
+    for t in tasks:
+        best = best_methods(rows, t)
+        cells = [t]
+        for m in methods:
             rs = groups.get((t, m))
             if not rs:
                 cells.append("")
                 continue
             text = report._cell(rs)
-            if m in best[t]:
+            if m in best:
                 cells.append(("★ " + text, "best"))
-            elif not any(r["status"] == "ok" for r in rs) and text == "failed":
+            elif text == "failed":
                 cells.append((text, "failed"))
             else:
                 cells.append(text)
         body.append(cells)
-    return _table(["method", *tasks], body)
+    return _table(["task", *methods], body, table_id="scores")
 
 
 def compute_table(rows, tasks, methods) -> list[str]:
@@ -151,7 +153,7 @@ def compute_table(rows, tasks, methods) -> list[str]:
                          mean("compile_s", "{:.1f}"), mean("env_steps", "{:.0f}"),
                          mean("backprop_steps", "{:.0f}")])
     return _table(["task", "method", "finished / runs", "wall time [s]", "compile [s]",
-                   "env steps", "backprop steps"], body, name_cols=2)
+                   "env steps", "backprop steps"], body, name_cols=2, table_id="compute")
 
 
 def gradient_table(rows, tasks, methods) -> list[str]:
@@ -172,7 +174,7 @@ def gradient_table(rows, tasks, methods) -> list[str]:
             bad = sum(int(report._float(r["nonfinite_grads"]) or 0) for r in rs)
             body.append([t, m, _num(gmax), _num(np.mean(means)) if means else "", str(bad)])
     return _table(["task", "method", "max over runs", "mean", "non-finite gradient steps"],
-                  body, name_cols=2)
+                  body, name_cols=2, table_id="gradients")
 
 
 def problem_table(rows, tasks, methods) -> list[str]:
@@ -186,7 +188,8 @@ def problem_table(rows, tasks, methods) -> list[str]:
     body = [[r["task"], r["method"], r["seed"],
              (r["status"], "failed" if r["status"] == "failed" else ""), r["error"]]
             for r in bad]
-    return _table(["task", "method", "seed", "status", "cause"], body, name_cols=5)
+    return _table(["task", "method", "seed", "status", "cause"], body, name_cols=5,
+                  table_id="problems")
 
 
 def compute_seconds(rows) -> float:
