@@ -187,7 +187,9 @@ DEMO_ARGS = [
 @nox.session
 def demo(session: nox.Session) -> None:
     """The main job: the benchmark runner (dax-bench) on a small default; writes
-    bench_out/results.csv, results.md and a chart per task."""
+    bench_out/results.csv, results.md, a chart per task and the results page
+    bench_out/index.html (tables, charts, learning curves, one episode animation per task
+    and method), and prints the page's path as its last line (open it in a browser)."""
     _install_local(session, LAYERS)
     session.run("dax-bench", "run", *(session.posargs or DEMO_ARGS), env=PYTEST_ENV)
 

@@ -9,8 +9,12 @@ compiles the episode once (``jax.jit(...).lower(key, params).compile()``, timed 
 ``fold_in(key, 0)``, the same for every method). The **episode score is the final-step
 ``r_gt``**. Every finished run is appended to ``results.csv`` at once (one flushed, fsynced
 write per row); started again, the runner skips the (task, method, seed, budget) rows already
-there. At the end it rewrites ``results.md`` (mean ± standard error, methods x tasks) and
-``chart_<task>.png`` (score against wall time and simulated environment steps).
+there. Beside each row it records the episode (start key and actions,
+``episodes/<task>/<method>/seed<k>.npz``, :mod:`dax_algos.episodes`). At the end it
+rewrites ``results.md`` (mean ± standard error, methods x tasks), ``chart_<task>.png``
+(score against wall time and simulated environment steps) and the results page
+``index.html`` (:mod:`dax_algos.page`, with each (task, method)'s median episode replayed
+and drawn); ``dax-bench report --out DIR`` rewrites them.
 
 A run fails (``status=failed``, cause in ``error``) when it raises, when a state, action or
 reward turns non-finite (the task's ``finite`` flag), or when a gradient is non-finite
