@@ -165,6 +165,7 @@ def test_recordings_replay_to_the_recorded_scores(grid):
         ep = episodes.load_episode(episodes.episode_path(out, r["task"], r["method"],
                                                          r["seed"]))
         assert ep.actions.shape == (2, 6) and ep.reset_key.dtype == np.uint32, ep
+        assert ep.budget == "quick" and ep.fingerprint, ep
         if r["method"] == "ppo":  # a learner: the first of its 2 evaluation rollouts
             assert (ep.rollout, ep.n_rollouts) == (0, 2)
             np.testing.assert_array_equal(ep.reset_key,

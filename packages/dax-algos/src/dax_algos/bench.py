@@ -431,7 +431,7 @@ def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar, demo_dir=Non
                        **evaluate(out, runnable))
             episodes.save_episode(episodes.episode_path(csv_path.parent, t, m, s),
                                   episodes.planner_reset_key(s), out.actions, out.score,
-                                  env.spec.fingerprint())
+                                  env.spec.fingerprint(), budget=budget)
         except Exception as err:  # noqa: BLE001
             row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
                        error=_error_text(err))
@@ -473,7 +473,7 @@ def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, com
             episodes.save_episode(episodes.episode_path(out_dir, t, m, s),
                                   episodes.learner_reset_key(s, config.n_eval), ep.actions,
                                   ep.actions_score, env.spec.fingerprint(), rollout=0,
-                                  n_rollouts=config.n_eval)
+                                  n_rollouts=config.n_eval, budget=budget)
             if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(one.policy)):
                 trained.save_trained(out_dir / "policies" / t / m / f"seed{s}.msgpack", m,
                                      env, config, one.policy, seed=int(s), budget=budget)

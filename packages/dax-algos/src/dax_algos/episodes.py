@@ -64,7 +64,9 @@ def episode_path(out, task: str, method: str, seed: int) -> Path:
 class Episode(NamedTuple):
     """A recorded episode (NumPy): ``reset_key`` uint32 (2,), ``actions`` float32 (T, d),
     ``score`` its final-step r_gt, ``rollout`` / ``n_rollouts`` which evaluation rollout
-    of a learner it is (0 / 1 for a planner), ``fingerprint`` the task spec's."""
+    of a learner it is (0 / 1 for a planner), ``fingerprint`` the task spec's, ``budget``
+    the row's (``""`` if not recorded): a later run of the other budget on the same
+    directory writes the same file."""
 
     reset_key: np.ndarray
     actions: np.ndarray
@@ -72,10 +74,11 @@ class Episode(NamedTuple):
     rollout: int
     n_rollouts: int
     fingerprint: str
+    budget: str = ""
 
 
 def save_episode(path, reset_key, actions, score, fingerprint: str, rollout: int = 0,
-                 n_rollouts: int = 1) -> Path:
+                 n_rollouts: int = 1, budget: str = "") -> Path:
     """Write one :class:`Episode` to ``path`` (``.npz``, atomically)."""
     key = np.asarray(reset_key)
     if key.dtype != np.uint32 or key.shape != (2,):
@@ -83,7 +86,8 @@ def save_episode(path, reset_key, actions, score, fingerprint: str, rollout: int
                          f"{key.shape}")
     arrays = dict(reset_key=key, actions=np.asarray(actions, np.float32),
                   score=np.float64(score), rollout=np.int64(rollout),
-                  n_rollouts=np.int64(n_rollouts), fingerprint=np.str_(fingerprint))
+                  n_rollouts=np.int64(n_rollouts), fingerprint=np.str_(fingerprint),
+                  budget=np.str_(budget))
     return atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
@@ -93,7 +97,8 @@ def load_episode(path) -> Episode:
         with np.load(path, allow_pickle=False) as z:
             ep = Episode(np.asarray(z["reset_key"]), np.asarray(z["actions"]),
                          float(z["score"]), int(z["rollout"]), int(z["n_rollouts"]),
-                         str(z["fingerprint"]))
+                         str(z["fingerprint"]),
+                         str(z["budget"]) if "budget" in z.files else "")
     except (OSError, ValueError, KeyError, EOFError) as err:
         raise ValueError(f"{path}: not a recorded episode ({err})") from None
     if ep.reset_key.dtype != np.uint32 or ep.reset_key.shape != (2,) \
@@ -329,6 +334,10 @@ def _picture(out, t, m, rows, make_env, envs, replays) -> Picture:
         return pic
     try:
         episode = load_episode(path)
+        if episode.budget and episode.budget != row.get("budget", episode.budget):
+            pic.note = (f"seed {seed}'s recording is of the {episode.budget} budget (a later "
+                        f"run on this directory), not of this row's")
+            return pic
         pic.recorded, pic.rollout, pic.n_rollouts = (episode.score, episode.rollout,
                                                      episode.n_rollouts)
         if t not in envs:
