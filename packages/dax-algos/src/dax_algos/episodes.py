@@ -218,35 +218,32 @@ def picture_key(fingerprint: str, episode: Episode) -> str:
     return h.hexdigest()[:12]
 
 
-def _subsample(frames, n: int):
-    """At most ``n`` of ``frames``, evenly spread, the first and last kept."""
-    if len(frames) <= n:
-        return frames
-    return frames[np.unique(np.round(np.linspace(0, len(frames) - 1, n)).astype(int))]
-
-
-def draw(env, states, params=None):
+def draw(env, states, view=None):
     """``(animation frames, filmstrip)`` (uint8 NumPy) of an episode's ``states`` (leading
-    time axis): the oblique shaded view of :func:`dax_tasks.render.scene_frames` with the
-    goal as a faint overlay, and :data:`KEY_FRAMES` key frames beside the goal."""
+    time axis): at most :data:`MAX_FRAMES` of them (evenly spaced, the first and last
+    kept; drawing is the cost) in the oblique shaded view of
+    :func:`dax_tasks.render.scene_frames` with the goal as a faint overlay, and
+    :data:`KEY_FRAMES` key frames beside the goal alone (:func:`dax_tasks.render.
+    goal_frame`, with the colliders of the episode's start). ``view``: a
+    :class:`dax_tasks.render.SceneView` (default ``SceneView.for_env(env)``)."""
     from dax_tasks import render
 
-    if not hasattr(render, "scene_frames"):  # TEMPORARY until issue19-render is merged
-        frames = render.render(env, states, RES[1])
-        strip = np.concatenate(list(frames[np.linspace(0, len(frames) - 1, KEY_FRAMES)
-                                           .astype(int)]), axis=1)
-        return _subsample(frames, MAX_FRAMES), strip
-    view = render.SceneView.for_env(env, params)
-    frames = render.scene_frames(env, states, view=view, res=RES, goal=True)
-    strip = render.filmstrip(frames, k=KEY_FRAMES)
-    return _subsample(frames, MAX_FRAMES), strip
+    view = render.SceneView.for_env(env) if view is None else view
+    n = int(np.shape(states.t)[0])
+    keep = render.subsample(n, MAX_FRAMES)
+    frames = render.scene_frames(env, jax.tree_util.tree_map(lambda x: x[keep], states),
+                                 view=view, res=RES, goal=True)
+    start = jax.tree_util.tree_map(lambda x: x[0], states)
+    goal = render.goal_frame(env, start, view=view, res=RES)
+    return frames, render.filmstrip(frames, k=KEY_FRAMES, goal_frame=goal)
 
 
 def render_picture(out: Path, env, episode: Episode, task: str, method: str, seed: int,
                    replays: dict, params=None) -> dict:
     """Replay ``episode`` on ``env``, draw it and write its pictures under ``out`` (the
     GIF, the filmstrip PNG, then the sidecar JSON, each atomically); returns the sidecar's
-    contents. ``replays`` caches the jitted replays per (task, batched)."""
+    contents. ``replays`` caches the jitted replays per (task, batched) and the view per
+    (task, "view")."""
     from PIL import Image
 
     from dax_tasks import render
@@ -266,12 +263,13 @@ def render_picture(out: Path, env, episode: Episode, task: str, method: str, see
         if abs(score - episode.score) <= MISMATCH:
             break
         mode = "vmap over a batch of one"
-    frames, strip = draw(env, states, params)
-    save = getattr(render, "save_animation", render.save_video)  # TEMPORARY, see draw
-    save(frames, base.with_suffix(".gif"), fps=FPS)
-    atomic_write(base.with_suffix(".png"),
-                 lambda f: Image.fromarray(np.asarray(strip)).save(f, format="PNG",
-                                                                   optimize=True))
+    if (task, "view") not in replays:  # one view per task: its methods framed alike
+        replays[(task, "view")] = render.SceneView.for_env(env, params)
+    frames, strip = draw(env, states, replays[(task, "view")])
+    render.save_animation(frames, base.with_suffix(".gif"), fps=FPS)
+    # not render.save_png: its optimize=True costs ~0.4 s a strip for ~10 % smaller files
+    atomic_write(base.with_suffix(".png"), lambda f: Image.fromarray(strip).save(
+        f, format="PNG", compress_level=6))
     meta = dict(seed=int(seed), key=key, replayed=score, recorded=episode.score,
                 replay_mode=mode, frames=int(len(frames)),
                 render_s=round(time.perf_counter() - t0, 3),
