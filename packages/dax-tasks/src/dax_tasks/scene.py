@@ -230,7 +230,7 @@ class _Shape:
         return self.world(self.tris.reshape(-1, 3))
 
 
-def _lathe(profile, n: int = 40):
+def _lathe(profile, n: int = 32):
     """Triangles (F, 3, 3) of the surface swept by the ``(r, z)`` polyline ``profile``
     about the z axis (``n`` segments)."""
     prof = np.asarray(profile, np.float64)
@@ -362,95 +362,101 @@ class _Canvas:
         return flat[ok], depth[ok], rgb[ok], np.full(int(ok.sum()), kind, np.int8)
 
     def triangles(self, tris_world, colors, kinds=None, two_sided_kinds=None,
-                  vertex_colors=None):
+                  vertex_colors=None, cull_back: bool = False):
         """Fragments of triangles (F, 3, 3) world. ``colors`` (F, 3) a colour per face,
-        or ``vertex_colors`` (F, 3, 3) per corner (interpolated); faces are shaded with
-        Lambert of their normal turned towards the camera. ``kinds`` (F,) int or, with
-        ``two_sided_kinds = (sign (F,), back_tint)``, the front/back kinds are chosen by
-        which side faces the camera (``sign`` +1 where the face's winding normal is its
-        front) and the back's colours are mixed with ``back_tint``."""
+        or ``vertex_colors`` (F, 3, 3) per corner (interpolated, perspective-correct); faces
+        are shaded with Lambert of their normal turned towards the camera. ``kinds`` (F,)
+        int or, with ``two_sided_kinds = (sign (F,), back_tint)``, the front/back kinds
+        are chosen by which side faces the camera (``sign`` +1 where the face's winding
+        normal is its front) and the back's colours are mixed with ``back_tint``.
+        ``cull_back`` drops faces whose winding normal looks away from the camera (the far
+        side of a closed, outward-wound mesh)."""
         tris_world = np.asarray(tris_world, np.float64)
         cam = self.view.camera(tris_world)                                 # (F, 3, 3)
-        good = np.all(cam[..., 2] > _NEAR, axis=1)
+        n = np.cross(tris_world[:, 1] - tris_world[:, 0],
+                     tris_world[:, 2] - tris_world[:, 0])                   # world
+        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-30
+        toward = np.sum(n * (np.asarray(self.view.eye) - tris_world[:, 0]), axis=1) > 0
+        good = np.all(cam[..., 2] > _NEAR, axis=1) & (toward | (not cull_back))
         if not np.any(good):
             return None
-        cam, tw = cam[good], tris_world[good]
         idx = np.nonzero(good)[0]
+        cam, n, toward = cam[idx], n[idx], toward[idx]
         row, col = self.screen(cam)                                        # (F, 3)
-        n = np.cross(tw[:, 1] - tw[:, 0], tw[:, 2] - tw[:, 0])               # world
-        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-30
-        toward = np.sum(n * (np.asarray(self.view.eye) - tw[:, 0]), axis=1) > 0
         shade = AMBIENT + DIFFUSE * np.abs(n @ LIGHT)
-        if vertex_colors is not None:
-            vc = vertex_colors[idx]
-        else:
-            vc = np.repeat(colors[idx][:, None, :], 3, axis=1)
         if two_sided_kinds is not None:
             sign, tint = two_sided_kinds
             front = toward == (sign[idx] > 0)
             kind = np.where(front, _FRONT, _BACK).astype(np.int8)
             bias = np.where(front, 0.0, -LAYER_BIAS)
-            vc = np.where(front[:, None, None], vc, 0.3 * vc + 0.7 * tint)
         else:
+            front = np.ones(len(idx), bool)
             kind = np.asarray(kinds, np.int8)[idx]
             bias = np.zeros(len(idx))
-        out = []
-        lo_c = np.clip(np.ceil(col.min(1)), 0, self.w - 1).astype(np.int64)
+        if vertex_colors is not None:
+            vc = np.asarray(vertex_colors, np.float64)[idx]
+        else:
+            vc = np.repeat(np.asarray(colors, np.float64)[idx][:, None, :], 3, axis=1)
+        if two_sided_kinds is not None:
+            vc = np.where(front[:, None, None], vc, 0.3 * vc + 0.7 * tint)
+        lo_c = np.clip(np.ceil(col.min(1)), 0, self.w).astype(np.int64)
         hi_c = np.clip(np.floor(col.max(1)), -1, self.w - 1).astype(np.int64)
-        lo_r = np.clip(np.ceil(row.min(1)), 0, self.h - 1).astype(np.int64)
+        lo_r = np.clip(np.ceil(row.min(1)), 0, self.h).astype(np.int64)
         hi_r = np.clip(np.floor(row.max(1)), -1, self.h - 1).astype(np.int64)
-        size = np.maximum(hi_c - lo_c + 1, hi_r - lo_r + 1)
+        wc, wr = hi_c - lo_c + 1, hi_r - lo_r + 1
         area = ((col[:, 1] - col[:, 0]) * (row[:, 2] - row[:, 0])
                 - (col[:, 2] - col[:, 0]) * (row[:, 1] - row[:, 0]))
-        live = (size > 0) & (np.abs(area) > 1e-12)
-        bucket = np.where(live, np.ceil(np.log2(np.maximum(size, 1))), -1).astype(int)
-        for b in np.unique(bucket[bucket >= 0]):
-            sel = np.nonzero(bucket == b)[0]
-            s = 2 ** b
-            oi, oj = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
-            pr = lo_r[sel, None] + oi.ravel()[None]
+        live = (wc > 0) & (wr > 0) & (np.abs(area) > 1e-12)
+        # triangles grouped by their bounding box rounded up to powers of two per axis
+        bc = np.ceil(np.log2(np.maximum(wc, 1))).astype(int)
+        br = np.ceil(np.log2(np.maximum(wr, 1))).astype(int)
+        bucket = np.where(live, bc * 64 + br, -1)
+        out = []
+        for key in np.unique(bucket[bucket >= 0]):
+            sel = np.nonzero(bucket == key)[0]
+            oi, oj = np.meshgrid(np.arange(2 ** (key % 64)), np.arange(2 ** (key // 64)),
+                                 indexing="ij")
+            pr = lo_r[sel, None] + oi.ravel()[None]                      # (S, K)
             pc = lo_c[sel, None] + oj.ravel()[None]
             r_, c_ = row[sel], col[sel]
-            w = []
-            for a_, b_ in ((1, 2), (2, 0), (0, 1)):
-                w.append(((c_[:, b_, None] - c_[:, a_, None]) * (pr - r_[:, a_, None])
-                          - (pc - c_[:, a_, None]) * (r_[:, b_, None] - r_[:, a_, None]))
-                         / area[sel, None])
-            bary = np.stack(w, -1)                                         # (S, K, 3)
-            ok = (np.all(bary >= -1e-9, axis=-1) & (pr <= hi_r[sel, None])
-                  & (pc <= hi_c[sel, None]))
-            inv = bary / cam[sel, None, :, 2]
+            w = [((c_[:, b_, None] - c_[:, a_, None]) * (pr - r_[:, a_, None])
+                  - (pc - c_[:, a_, None]) * (r_[:, b_, None] - r_[:, a_, None]))
+                 / area[sel, None] for a_, b_ in ((1, 2), (2, 0), (0, 1))]
+            ok = ((w[0] >= -1e-9) & (w[1] >= -1e-9) & (w[2] >= -1e-9)
+                  & (pr <= hi_r[sel, None]) & (pc <= hi_c[sel, None]))
+            si, ki = np.nonzero(ok)
+            if not len(si):
+                continue
+            face = sel[si]
+            inv = np.stack([wk[si, ki] for wk in w], -1) / cam[face, :, 2]    # (M, 3)
             inv_z = inv.sum(-1)
-            pbary = inv / inv_z[..., None]
-            rgb = np.einsum("skv,svc->skc", pbary, vc[sel]) * shade[sel, None, None]
-            flat, inimg = self._flat(pr, pc)
-            ok &= inimg
-            out.append((flat[ok], (1.0 / inv_z + bias[sel, None])[ok], rgb[ok],
-                        np.broadcast_to(kind[sel, None], ok.shape)[ok]))
+            if vertex_colors is not None:
+                rgb = np.einsum("mv,mvc->mc", inv / inv_z[:, None], vc[face])
+            else:
+                rgb = vc[face, 0]
+            out.append((pr[si, ki] * self.w + pc[si, ki], 1.0 / inv_z + bias[face],
+                        rgb * shade[face, None], kind[face]))
         if not out:
             return None
         return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
     def lines(self, polylines_world, step_px: float = 0.7):
         """Fragments ``(flat, depth)`` of world polylines, about ``step_px`` apart."""
-        flats, depths = [], []
+        flats, depths = [np.zeros(0, np.int64)], [np.zeros(0)]
         for pl in polylines_world:
             cam = self.view.camera(pl)
             if np.any(cam[:, 2] <= _NEAR):
                 continue
             row, col = self.screen(cam)
-            seg = np.hypot(np.diff(row), np.diff(col))
-            for i in range(len(pl) - 1):
-                m = max(int(np.ceil(seg[i] / step_px)), 1)
-                s = np.arange(m) / m
-                z = 1.0 / ((1 - s) / cam[i, 2] + s / cam[i + 1, 2])
-                r = np.rint(row[i] + s * (row[i + 1] - row[i])).astype(np.int64)
-                c = np.rint(col[i] + s * (col[i + 1] - col[i])).astype(np.int64)
-                flat, ok = self._flat(r, c)
-                flats.append(flat[ok])
-                depths.append(z[ok])
-        if not flats:
-            return np.zeros(0, np.int64), np.zeros(0)
+            m = max(int(np.ceil(np.hypot(np.diff(row), np.diff(col)).max() / step_px)), 1)
+            s = (np.arange(m) / m)[None]                                   # (1, m)
+            z0, z1 = cam[:-1, 2, None], cam[1:, 2, None]
+            z = 1.0 / ((1 - s) / z0 + s / z1)
+            r = np.rint(row[:-1, None] + s * np.diff(row)[:, None]).astype(np.int64)
+            c = np.rint(col[:-1, None] + s * np.diff(col)[:, None]).astype(np.int64)
+            flat, ok = self._flat(r, c)
+            flats.append(flat[ok])
+            depths.append(z[ok])
         return np.concatenate(flats), np.concatenate(depths)
 
     def dots(self, points, px: float) -> np.ndarray:
@@ -551,8 +557,8 @@ class _Table:
     rgb: np.ndarray      # (H*W, 3)
     depth: np.ndarray    # (H*W,)
     on_table: np.ndarray  # (H*W,) bool
-    cell: np.ndarray     # (M, 2) int shadow-grid cell of each table pixel
-    weight: np.ndarray   # (M, 2) bilinear weights
+    cell: np.ndarray     # (M, 4) flat shadow-grid cells around each table pixel
+    weight: np.ndarray   # (M, 4) their bilinear weights
 
 
 _SHADOW_GRID = 160
@@ -590,18 +596,31 @@ def _table(view: SceneView, res) -> _Table:
     idx = np.nonzero(hit)[0][inside]
     on = np.zeros(w * h, bool)
     on[idx] = True
-    table = _Table(rgb, np.where(hit, depth, np.inf), on, cell[inside].astype(np.int64),
-                   weight[inside])
+    c, f = cell[inside].astype(np.int64), weight[inside]
+    corners = np.stack([c[:, 0] * g + c[:, 1], (c[:, 0] + 1) * g + c[:, 1],
+                        c[:, 0] * g + c[:, 1] + 1, (c[:, 0] + 1) * g + c[:, 1] + 1], -1)
+    weights = np.stack([(1 - f[:, 0]) * (1 - f[:, 1]), f[:, 0] * (1 - f[:, 1]),
+                        (1 - f[:, 0]) * f[:, 1], f[:, 0] * f[:, 1]], -1)
+    table = _Table(rgb, np.where(hit, depth, np.inf), on, corners, weights)
     if len(_TABLE_CACHE) > 16:
         _TABLE_CACHE.clear()
     _TABLE_CACHE[key] = table
     return table
 
 
-def _blur_matrix(n: int, sigma_cells: float) -> np.ndarray:
-    i = np.arange(n)
-    k = np.exp(-0.5 * ((i[:, None] - i[None]) / max(sigma_cells, 1e-6)) ** 2)
-    return k / k.sum(1, keepdims=True)
+def _blur(a, sigma_x: float, sigma_y: float) -> np.ndarray:
+    """``a`` (X, Y) blurred by a Gaussian of ``sigma`` cells per axis (separable shifted
+    sums, not a BLAS product: OpenBLAS threads fight XLA's for the cores)."""
+    for axis, sigma in ((0, sigma_x), (1, sigma_y)):
+        k = max(int(np.ceil(3 * sigma)), 1)
+        taps = np.exp(-0.5 * (np.arange(-k, k + 1) / max(sigma, 1e-6)) ** 2)
+        taps /= taps.sum()
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (k, k)
+        p = np.pad(a, pad)
+        n = a.shape[axis]
+        a = sum(t * (p[i:i + n] if axis == 0 else p[:, i:i + n]) for i, t in enumerate(taps))
+    return a
 
 
 def _shadow(view: SceneView, table: _Table, points, radius: float) -> np.ndarray:
@@ -620,13 +639,8 @@ def _shadow(view: SceneView, table: _Table, points, radius: float) -> np.ndarray
     ok = (iu >= 0) & (iu < g) & (iv >= 0) & (iv < g)
     occ = np.zeros((g, g))
     occ[iu[ok], iv[ok]] = 1.0
-    bu, bv = _blur_matrix(g, SHADOW_BLUR / cx), _blur_matrix(g, SHADOW_BLUR / cy)
-    occ = bu @ occ @ bv.T
-    c, wgt = table.cell, table.weight
-    val = ((1 - wgt[:, 0]) * (1 - wgt[:, 1]) * occ[c[:, 0], c[:, 1]]
-           + wgt[:, 0] * (1 - wgt[:, 1]) * occ[c[:, 0] + 1, c[:, 1]]
-           + (1 - wgt[:, 0]) * wgt[:, 1] * occ[c[:, 0], c[:, 1] + 1]
-           + wgt[:, 0] * wgt[:, 1] * occ[c[:, 0] + 1, c[:, 1] + 1])
+    occ = _blur(occ, SHADOW_BLUR / cx, SHADOW_BLUR / cy)
+    val = np.sum(occ.ravel()[table.cell] * table.weight, axis=1)
     return SHADOW * np.clip(val, 0.0, 1.0)
 
 
@@ -681,7 +695,7 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
         tris = np.concatenate([s.world(s.tris.reshape(-1, 3)).reshape(-1, 3, 3)
                                for s in shapes])
         glass = cv.triangles(tris, np.broadcast_to(GLASS, (len(tris), 3)),
-                             kinds=np.zeros(len(tris), np.int8))
+                             kinds=np.zeros(len(tris), np.int8), cull_back=True)
         cv.glass(glass, GLASS_ALPHA)
         flat, depth = cv.lines([s.world(r) for s in shapes for r in s.rims])
         vis = depth <= cv.depth[flat] + 0.5 * view.marker
