@@ -29,8 +29,9 @@ What a picture shows, back to front:
 * kinematic colliders other than planes (the pour tasks' bowls, the push pusher) as
   translucent shaded glass (the nearest surface in front of the opaque scene blended at
   :data:`GLASS_ALPHA`) with their rims outlined, so the water inside stays visible;
-* the goal points as a faint green overlay (alpha :data:`GOAL_ALPHA`, a slightly stronger
-  outline), drawn over everything.
+* the goal as a faint green overlay drawn over everything: dots at (up to
+  :data:`GOAL_DOTS` of) its points at alpha :data:`GOAL_ALPHA`, and for a cloth the goal
+  mesh's outline at :data:`GOAL_EDGE_ALPHA`.
 
 Pure NumPy after the states' points are taken out (one jitted, vmapped call per episode).
 Deterministic: the same input gives the same bytes (ties in depth keep the drawing order).
@@ -40,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 
 import jax
 import numpy as np
@@ -55,6 +57,9 @@ MARKER = np.asarray([0.86, 0.12, 0.12])
 GOAL = np.asarray([0.1, 0.75, 0.2])
 #: Opacity of the goal overlay, its outline and the colliders' glass.
 GOAL_ALPHA, GOAL_EDGE_ALPHA, GLASS_ALPHA = 0.3, 0.55, 0.3
+#: At most this many goal points are drawn as dots (every k-th), so a dense goal (a
+#: liquid's) stays a sprinkle that the object shows through.
+GOAL_DOTS = 160
 #: Light: direction towards it (world), ambient and diffuse shares.
 LIGHT = np.asarray([-0.35, 0.3, 1.0]) / np.linalg.norm([-0.35, 0.3, 1.0])
 AMBIENT, DIFFUSE = 0.45, 0.55
@@ -81,7 +86,8 @@ class SceneView:
     window: ``(a0, a1, b0, b1)``: the part of the image plane at unit distance (right,
     up) that the picture shows; any ``res`` fits it, centred, keeping the aspect.
     table_z: the table's height; grid: its checker's square side.
-    radius: the sphere each particle is drawn as; marker: the end effector's sphere.
+    radius: the sphere each particle is drawn as (0.65 x the points' spacing, so a liquid
+    reads as a body, not a cloud); marker: the end effector's sphere.
     shadow_box: ``(x0, x1, y0, y1)`` the table region that receives shadows.
 
     Perspective, not orthographic: things nearer the camera look larger, which with the
@@ -126,7 +132,7 @@ class SceneView:
         goal = np.asarray(params.goal, np.float64).reshape(-1, 3)
         faces = env.unwrapped.object_faces
         spacing = point_spacing(pts)
-        radius = 0.5 * spacing if faces is None else 0.0
+        radius = 0.65 * spacing if faces is None else 0.0
         table_z = _table_height(env, pts, radius)
         parts = [pts, goal, ee]
         for shape in _collider_shapes(env, state.physics):
@@ -152,9 +158,9 @@ class SceneView:
         ha, hb = 0.5 * np.ptp(a) * grow, 0.5 * np.ptp(b) * grow
         window = (float(ca - ha), float(ca + ha), float(cb - hb), float(cb + hb))
         extent = float(np.max(hi[:2] - lo[:2]))
-        grid = float(10 ** math.floor(math.log10(extent / 4)))
-        if extent / grid > 12:
-            grid *= 2.5 if extent / grid > 25 else 2
+        grid = float(10 ** math.floor(math.log10(extent / 8)))  # 8 to 20 squares across
+        if extent / grid > 20:
+            grid *= 2.5 if extent / grid > 40 else 2
         pad = 0.5 * extent
         box = (float(lo[0] - pad), float(hi[0] + pad), float(lo[1] - pad), float(hi[1] + pad))
         return SceneView(tuple(map(float, eye)), tuple(map(float, target)), window,
@@ -702,7 +708,8 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
         cv.blend(np.unique(flat[vis]), RIM, 0.8)
     # the goal, over everything
     if goal is not None:
-        cv.blend(cv.dots(goal, max(1.0, 0.005 * max(cv.w, cv.h))), GOAL, GOAL_ALPHA)
+        dots = goal[::max(1, -(-len(goal) // GOAL_DOTS))]
+        cv.blend(cv.dots(dots, max(1.0, 0.005 * max(cv.w, cv.h))), GOAL, GOAL_ALPHA)
         if goal_edges is not None:
             flat, _ = cv.lines(list(goal[goal_edges]))
             cv.blend(np.unique(flat), GOAL, GOAL_EDGE_ALPHA)
@@ -727,6 +734,10 @@ def _shadow_radius(view: SceneView, points, faces) -> float:
 
 
 # --------------------------------------------------------------------------- public
+#: The jitted (object points, end effector) of a stacked episode, per env (compiled once).
+_POINTS_FNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def _episode(env, states):
     """Host arrays of a stacked episode: points (T, N, 3), end effector (T, 3), T."""
     t = getattr(states, "t", None)
@@ -748,7 +759,10 @@ def _episode(env, states):
         if not shape or shape[0] != n:
             raise ValueError(f"states.physics{jax.tree_util.keystr(path)} has shape {shape}, "
                              f"not a leading time axis of {n} like state.t")
-    fn = jax.jit(jax.vmap(lambda p: (env.object_points(p), env.end_effector(p))))
+    fn = _POINTS_FNS.get(env)
+    if fn is None:
+        fn = jax.jit(jax.vmap(lambda p: (env.object_points(p), env.end_effector(p))))
+        _POINTS_FNS[env] = fn
     pts, ee = fn(physics)
     return np.asarray(pts, np.float64), np.asarray(ee, np.float64), n
 
