@@ -20,7 +20,7 @@ What a picture shows, back to front:
 * particles (MPM tasks) as spheres (discs of the sphere's depth and normal, Lambert plus
   ambient shading), each in its point's colour (``env.object_colors``: a rope's ends, a
   liquid's materials);
-* a cloth (``env.object_faces``) as its triangle mesh, shaded per face, two-sided: the
+* a cloth (``env.object_faces``) as its triangle mesh, smoothly shaded, two-sided: the
   front (the side facing up on the flat cloth) in the cloth's texture, the back a pale
   cream tint of it, so a folded layer (its back up) stands out from the layer under it;
 * a dark outline where the kind of surface changes (object / table / front / back) or the
@@ -368,15 +368,16 @@ class _Canvas:
         return flat[ok], depth[ok], rgb[ok], np.full(int(ok.sum()), kind, np.int8)
 
     def triangles(self, tris_world, colors, kinds=None, two_sided_kinds=None,
-                  vertex_colors=None, cull_back: bool = False):
+                  vertex_colors=None, vertex_shade=None, cull_back: bool = False):
         """Fragments of triangles (F, 3, 3) world. ``colors`` (F, 3) a colour per face,
         or ``vertex_colors`` (F, 3, 3) per corner (interpolated, perspective-correct); faces
         are shaded with Lambert of their normal turned towards the camera. ``kinds`` (F,)
         int or, with ``two_sided_kinds = (sign (F,), back_tint)``, the front/back kinds
         are chosen by which side faces the camera (``sign`` +1 where the face's winding
         normal is its front) and the back's colours are mixed with ``back_tint``.
-        ``cull_back`` drops faces whose winding normal looks away from the camera (the far
-        side of a closed, outward-wound mesh)."""
+        ``vertex_shade`` (F, 3) replaces the per-face Lambert by a shade per corner,
+        interpolated (smooth shading). ``cull_back`` drops faces whose winding normal
+        looks away from the camera (the far side of a closed, outward-wound mesh)."""
         tris_world = np.asarray(tris_world, np.float64)
         cam = self.view.camera(tris_world)                                 # (F, 3, 3)
         n = np.cross(tris_world[:, 1] - tris_world[:, 0],
@@ -405,6 +406,9 @@ class _Canvas:
             vc = np.repeat(np.asarray(colors, np.float64)[idx][:, None, :], 3, axis=1)
         if two_sided_kinds is not None:
             vc = np.where(front[:, None, None], vc, 0.3 * vc + 0.7 * tint)
+        if vertex_shade is not None:
+            vc = vc * np.asarray(vertex_shade, np.float64)[idx][..., None]
+            shade = np.ones(len(idx))
         lo_c = np.clip(np.ceil(col.min(1)), 0, self.w).astype(np.int64)
         hi_c = np.clip(np.floor(col.max(1)), -1, self.w - 1).astype(np.int64)
         lo_r = np.clip(np.ceil(row.min(1)), 0, self.h).astype(np.int64)
@@ -436,7 +440,7 @@ class _Canvas:
             face = sel[si]
             inv = np.stack([wk[si, ki] for wk in w], -1) / cam[face, :, 2]    # (M, 3)
             inv_z = inv.sum(-1)
-            if vertex_colors is not None:
+            if vertex_colors is not None or vertex_shade is not None:
                 rgb = np.einsum("mv,mvc->mc", inv / inv_z[:, None], vc[face])
             else:
                 rgb = vc[face, 0]
@@ -687,7 +691,8 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
     if mesh:
         frags.append(cv.triangles(points[faces], None,
                                   two_sided_kinds=(sign, CLOTH_BACK),
-                                  vertex_colors=colors[faces]))
+                                  vertex_colors=colors[faces],
+                                  vertex_shade=_vertex_shade(points, faces)[faces]))
     else:
         frags.append(cv.spheres(points, view.radius, colors, _PARTICLE, light_cam))
     if ee is not None:
@@ -714,6 +719,18 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
             flat, _ = cv.lines(list(goal[goal_edges]))
             cv.blend(np.unique(flat), GOAL, GOAL_EDGE_ALPHA)
     return cv.image()
+
+
+def _vertex_shade(points, faces) -> np.ndarray:
+    """Lambert plus ambient (V,) of a mesh's vertices with smooth normals (the faces'
+    area-weighted normals summed per vertex), lit from either side."""
+    tri = points[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], n)
+    vn /= np.linalg.norm(vn, axis=1, keepdims=True) + 1e-30
+    return AMBIENT + DIFFUSE * np.abs(vn @ LIGHT)
 
 
 def _mesh_samples(points, faces):
