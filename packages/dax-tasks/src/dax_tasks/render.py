@@ -261,14 +261,15 @@ def subsample(n: int, max_frames: int | None) -> np.ndarray:
 
 
 def save_video(frames, path, fps: float = 10.0, max_frames: int | None = None,
-               palette: str = "shared") -> Path:
+               palette: str = "shared", colors: int = 256) -> Path:
     """Write ``frames`` (a sequence of (H, W, 3) uint8 images) to ``path`` as a looping
     animated GIF, atomically (a temporary file in the same directory, then renamed).
 
     ``max_frames`` keeps at most that many frames, evenly spaced with the first and last
     (:func:`subsample`; the frame time stays ``1/fps``). ``palette="shared"`` quantises
-    every frame to one adaptive 256-colour palette made from the frames together (small
-    files, no flicker between frames); ``"per_frame"`` lets Pillow choose one per frame."""
+    every frame to one adaptive palette of ``colors`` (2 to 256) colours made from the
+    frames together (small files, no flicker between frames); ``"per_frame"`` lets Pillow
+    choose one per frame."""
     from PIL import Image
 
     path = Path(path)
@@ -277,6 +278,9 @@ def save_video(frames, path, fps: float = 10.0, max_frames: int | None = None,
     frames = _check_frames(frames, "save_video")
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}")
+    if isinstance(colors, bool) or not isinstance(colors, (int, np.integer)) or \
+            not 2 <= colors <= 256:
+        raise ValueError(f"colors must be a whole number from 2 to 256, got {colors!r}")
     if palette not in ("shared", "per_frame"):
         raise ValueError(f"palette must be 'shared' or 'per_frame', got {palette!r}")
     frames = [frames[i] for i in subsample(len(frames), max_frames)]
@@ -284,7 +288,7 @@ def save_video(frames, path, fps: float = 10.0, max_frames: int | None = None,
         # one palette from a strip of (up to 16 of) the frames, applied to all of them
         picks = [frames[i] for i in subsample(len(frames), 16)]
         ref = Image.fromarray(np.concatenate(picks, axis=0)).quantize(
-            256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
+            int(colors), method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
         images = [Image.fromarray(f).quantize(palette=ref, dither=Image.Dither.NONE)
                   for f in frames]
     else:
@@ -294,13 +298,17 @@ def save_video(frames, path, fps: float = 10.0, max_frames: int | None = None,
         duration=int(round(1000 / fps)), loop=0, optimize=False))
 
 
-def save_animation(frames, path, fps: float = 8.0, max_frames: int | None = None) -> Path:
+def save_animation(frames, path, fps: float = 8.0, max_frames: int | None = None,
+                   colors: int = 64) -> Path:
     """A small looping GIF of ``frames`` ((T, H, W, 3) uint8, e.g. :func:`scene_frames`) at
-    ``path``, atomically: one adaptive palette for all frames, at most ``max_frames``
+    ``path``, atomically: one adaptive palette of ``colors`` colours for all frames (64:
+    Pour-Water's expert episode, 40 frames at 320 x 240, takes 170 KiB against 240 KiB
+    with 256, and looks the same), at most ``max_frames``
     frames (evenly spaced, first and last kept). :func:`save_video` with its GIF
     settings for episode pictures. (Like any GIF written by Pillow, identical consecutive
     frames are stored once, showing for their summed time.)"""
-    return save_video(frames, path, fps=fps, max_frames=max_frames, palette="shared")
+    return save_video(frames, path, fps=fps, max_frames=max_frames, palette="shared",
+                      colors=colors)
 
 
 def filmstrip(frames, k: int = 5, goal_frame=None,  # noqa: F811 (the picture, not the function)

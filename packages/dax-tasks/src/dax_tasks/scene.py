@@ -20,7 +20,7 @@ What a picture shows, back to front:
 * particles (MPM tasks) as spheres (discs of the sphere's depth and normal, Lambert plus
   ambient shading), each in its point's colour (``env.object_colors``: a rope's ends, a
   liquid's materials);
-* a cloth (``env.object_faces``) as its triangle mesh, shaded per face, two-sided: the
+* a cloth (``env.object_faces``) as its triangle mesh, smoothly shaded, two-sided: the
   front (the side facing up on the flat cloth) in the cloth's texture, the back a pale
   cream tint of it, so a folded layer (its back up) stands out from the layer under it;
 * a dark outline where the kind of surface changes (object / table / front / back) or the
@@ -29,8 +29,9 @@ What a picture shows, back to front:
 * kinematic colliders other than planes (the pour tasks' bowls, the push pusher) as
   translucent shaded glass (the nearest surface in front of the opaque scene blended at
   :data:`GLASS_ALPHA`) with their rims outlined, so the water inside stays visible;
-* the goal points as a faint green overlay (alpha :data:`GOAL_ALPHA`, a slightly stronger
-  outline), drawn over everything.
+* the goal as a faint green overlay drawn over everything: dots at (up to
+  :data:`GOAL_DOTS` of) its points at alpha :data:`GOAL_ALPHA`, and for a cloth the goal
+  mesh's outline at :data:`GOAL_EDGE_ALPHA`.
 
 Pure NumPy after the states' points are taken out (one jitted, vmapped call per episode).
 Deterministic: the same input gives the same bytes (ties in depth keep the drawing order).
@@ -40,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 
 import jax
 import numpy as np
@@ -55,6 +57,9 @@ MARKER = np.asarray([0.86, 0.12, 0.12])
 GOAL = np.asarray([0.1, 0.75, 0.2])
 #: Opacity of the goal overlay, its outline and the colliders' glass.
 GOAL_ALPHA, GOAL_EDGE_ALPHA, GLASS_ALPHA = 0.3, 0.55, 0.3
+#: At most this many goal points are drawn as dots (every k-th), so a dense goal (a
+#: liquid's) stays a sprinkle that the object shows through.
+GOAL_DOTS = 160
 #: Light: direction towards it (world), ambient and diffuse shares.
 LIGHT = np.asarray([-0.35, 0.3, 1.0]) / np.linalg.norm([-0.35, 0.3, 1.0])
 AMBIENT, DIFFUSE = 0.45, 0.55
@@ -81,7 +86,8 @@ class SceneView:
     window: ``(a0, a1, b0, b1)``: the part of the image plane at unit distance (right,
     up) that the picture shows; any ``res`` fits it, centred, keeping the aspect.
     table_z: the table's height; grid: its checker's square side.
-    radius: the sphere each particle is drawn as; marker: the end effector's sphere.
+    radius: the sphere each particle is drawn as (0.65 x the points' spacing, so a liquid
+    reads as a body, not a cloud); marker: the end effector's sphere.
     shadow_box: ``(x0, x1, y0, y1)`` the table region that receives shadows.
 
     Perspective, not orthographic: things nearer the camera look larger, which with the
@@ -126,7 +132,7 @@ class SceneView:
         goal = np.asarray(params.goal, np.float64).reshape(-1, 3)
         faces = env.unwrapped.object_faces
         spacing = point_spacing(pts)
-        radius = 0.5 * spacing if faces is None else 0.0
+        radius = 0.65 * spacing if faces is None else 0.0
         table_z = _table_height(env, pts, radius)
         parts = [pts, goal, ee]
         for shape in _collider_shapes(env, state.physics):
@@ -152,9 +158,9 @@ class SceneView:
         ha, hb = 0.5 * np.ptp(a) * grow, 0.5 * np.ptp(b) * grow
         window = (float(ca - ha), float(ca + ha), float(cb - hb), float(cb + hb))
         extent = float(np.max(hi[:2] - lo[:2]))
-        grid = float(10 ** math.floor(math.log10(extent / 4)))
-        if extent / grid > 12:
-            grid *= 2.5 if extent / grid > 25 else 2
+        grid = float(10 ** math.floor(math.log10(extent / 8)))  # 8 to 20 squares across
+        if extent / grid > 20:
+            grid *= 2.5 if extent / grid > 40 else 2
         pad = 0.5 * extent
         box = (float(lo[0] - pad), float(hi[0] + pad), float(lo[1] - pad), float(hi[1] + pad))
         return SceneView(tuple(map(float, eye)), tuple(map(float, target)), window,
@@ -230,7 +236,7 @@ class _Shape:
         return self.world(self.tris.reshape(-1, 3))
 
 
-def _lathe(profile, n: int = 40):
+def _lathe(profile, n: int = 32):
     """Triangles (F, 3, 3) of the surface swept by the ``(r, z)`` polyline ``profile``
     about the z axis (``n`` segments)."""
     prof = np.asarray(profile, np.float64)
@@ -362,95 +368,105 @@ class _Canvas:
         return flat[ok], depth[ok], rgb[ok], np.full(int(ok.sum()), kind, np.int8)
 
     def triangles(self, tris_world, colors, kinds=None, two_sided_kinds=None,
-                  vertex_colors=None):
+                  vertex_colors=None, vertex_shade=None, cull_back: bool = False):
         """Fragments of triangles (F, 3, 3) world. ``colors`` (F, 3) a colour per face,
-        or ``vertex_colors`` (F, 3, 3) per corner (interpolated); faces are shaded with
-        Lambert of their normal turned towards the camera. ``kinds`` (F,) int or, with
-        ``two_sided_kinds = (sign (F,), back_tint)``, the front/back kinds are chosen by
-        which side faces the camera (``sign`` +1 where the face's winding normal is its
-        front) and the back's colours are mixed with ``back_tint``."""
+        or ``vertex_colors`` (F, 3, 3) per corner (interpolated, perspective-correct); faces
+        are shaded with Lambert of their normal turned towards the camera. ``kinds`` (F,)
+        int or, with ``two_sided_kinds = (sign (F,), back_tint)``, the front/back kinds
+        are chosen by which side faces the camera (``sign`` +1 where the face's winding
+        normal is its front) and the back's colours are mixed with ``back_tint``.
+        ``vertex_shade`` (F, 3) replaces the per-face Lambert by a shade per corner,
+        interpolated (smooth shading). ``cull_back`` drops faces whose winding normal
+        looks away from the camera (the far side of a closed, outward-wound mesh)."""
         tris_world = np.asarray(tris_world, np.float64)
         cam = self.view.camera(tris_world)                                 # (F, 3, 3)
-        good = np.all(cam[..., 2] > _NEAR, axis=1)
+        n = np.cross(tris_world[:, 1] - tris_world[:, 0],
+                     tris_world[:, 2] - tris_world[:, 0])                   # world
+        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-30
+        toward = np.sum(n * (np.asarray(self.view.eye) - tris_world[:, 0]), axis=1) > 0
+        good = np.all(cam[..., 2] > _NEAR, axis=1) & (toward | (not cull_back))
         if not np.any(good):
             return None
-        cam, tw = cam[good], tris_world[good]
         idx = np.nonzero(good)[0]
+        cam, n, toward = cam[idx], n[idx], toward[idx]
         row, col = self.screen(cam)                                        # (F, 3)
-        n = np.cross(tw[:, 1] - tw[:, 0], tw[:, 2] - tw[:, 0])               # world
-        n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-30
-        toward = np.sum(n * (np.asarray(self.view.eye) - tw[:, 0]), axis=1) > 0
         shade = AMBIENT + DIFFUSE * np.abs(n @ LIGHT)
-        if vertex_colors is not None:
-            vc = vertex_colors[idx]
-        else:
-            vc = np.repeat(colors[idx][:, None, :], 3, axis=1)
         if two_sided_kinds is not None:
             sign, tint = two_sided_kinds
             front = toward == (sign[idx] > 0)
             kind = np.where(front, _FRONT, _BACK).astype(np.int8)
             bias = np.where(front, 0.0, -LAYER_BIAS)
-            vc = np.where(front[:, None, None], vc, 0.3 * vc + 0.7 * tint)
         else:
+            front = np.ones(len(idx), bool)
             kind = np.asarray(kinds, np.int8)[idx]
             bias = np.zeros(len(idx))
-        out = []
-        lo_c = np.clip(np.ceil(col.min(1)), 0, self.w - 1).astype(np.int64)
+        if vertex_colors is not None:
+            vc = np.asarray(vertex_colors, np.float64)[idx]
+        else:
+            vc = np.repeat(np.asarray(colors, np.float64)[idx][:, None, :], 3, axis=1)
+        if two_sided_kinds is not None:
+            vc = np.where(front[:, None, None], vc, 0.3 * vc + 0.7 * tint)
+        if vertex_shade is not None:
+            vc = vc * np.asarray(vertex_shade, np.float64)[idx][..., None]
+            shade = np.ones(len(idx))
+        lo_c = np.clip(np.ceil(col.min(1)), 0, self.w).astype(np.int64)
         hi_c = np.clip(np.floor(col.max(1)), -1, self.w - 1).astype(np.int64)
-        lo_r = np.clip(np.ceil(row.min(1)), 0, self.h - 1).astype(np.int64)
+        lo_r = np.clip(np.ceil(row.min(1)), 0, self.h).astype(np.int64)
         hi_r = np.clip(np.floor(row.max(1)), -1, self.h - 1).astype(np.int64)
-        size = np.maximum(hi_c - lo_c + 1, hi_r - lo_r + 1)
+        wc, wr = hi_c - lo_c + 1, hi_r - lo_r + 1
         area = ((col[:, 1] - col[:, 0]) * (row[:, 2] - row[:, 0])
                 - (col[:, 2] - col[:, 0]) * (row[:, 1] - row[:, 0]))
-        live = (size > 0) & (np.abs(area) > 1e-12)
-        bucket = np.where(live, np.ceil(np.log2(np.maximum(size, 1))), -1).astype(int)
-        for b in np.unique(bucket[bucket >= 0]):
-            sel = np.nonzero(bucket == b)[0]
-            s = 2 ** b
-            oi, oj = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
-            pr = lo_r[sel, None] + oi.ravel()[None]
+        live = (wc > 0) & (wr > 0) & (np.abs(area) > 1e-12)
+        # triangles grouped by their bounding box rounded up to powers of two per axis
+        bc = np.ceil(np.log2(np.maximum(wc, 1))).astype(int)
+        br = np.ceil(np.log2(np.maximum(wr, 1))).astype(int)
+        bucket = np.where(live, bc * 64 + br, -1)
+        out = []
+        for key in np.unique(bucket[bucket >= 0]):
+            sel = np.nonzero(bucket == key)[0]
+            oi, oj = np.meshgrid(np.arange(2 ** (key % 64)), np.arange(2 ** (key // 64)),
+                                 indexing="ij")
+            pr = lo_r[sel, None] + oi.ravel()[None]                      # (S, K)
             pc = lo_c[sel, None] + oj.ravel()[None]
             r_, c_ = row[sel], col[sel]
-            w = []
-            for a_, b_ in ((1, 2), (2, 0), (0, 1)):
-                w.append(((c_[:, b_, None] - c_[:, a_, None]) * (pr - r_[:, a_, None])
-                          - (pc - c_[:, a_, None]) * (r_[:, b_, None] - r_[:, a_, None]))
-                         / area[sel, None])
-            bary = np.stack(w, -1)                                         # (S, K, 3)
-            ok = (np.all(bary >= -1e-9, axis=-1) & (pr <= hi_r[sel, None])
-                  & (pc <= hi_c[sel, None]))
-            inv = bary / cam[sel, None, :, 2]
+            w = [((c_[:, b_, None] - c_[:, a_, None]) * (pr - r_[:, a_, None])
+                  - (pc - c_[:, a_, None]) * (r_[:, b_, None] - r_[:, a_, None]))
+                 / area[sel, None] for a_, b_ in ((1, 2), (2, 0), (0, 1))]
+            ok = ((w[0] >= -1e-9) & (w[1] >= -1e-9) & (w[2] >= -1e-9)
+                  & (pr <= hi_r[sel, None]) & (pc <= hi_c[sel, None]))
+            si, ki = np.nonzero(ok)
+            if not len(si):
+                continue
+            face = sel[si]
+            inv = np.stack([wk[si, ki] for wk in w], -1) / cam[face, :, 2]    # (M, 3)
             inv_z = inv.sum(-1)
-            pbary = inv / inv_z[..., None]
-            rgb = np.einsum("skv,svc->skc", pbary, vc[sel]) * shade[sel, None, None]
-            flat, inimg = self._flat(pr, pc)
-            ok &= inimg
-            out.append((flat[ok], (1.0 / inv_z + bias[sel, None])[ok], rgb[ok],
-                        np.broadcast_to(kind[sel, None], ok.shape)[ok]))
+            if vertex_colors is not None or vertex_shade is not None:
+                rgb = np.einsum("mv,mvc->mc", inv / inv_z[:, None], vc[face])
+            else:
+                rgb = vc[face, 0]
+            out.append((pr[si, ki] * self.w + pc[si, ki], 1.0 / inv_z + bias[face],
+                        rgb * shade[face, None], kind[face]))
         if not out:
             return None
         return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
     def lines(self, polylines_world, step_px: float = 0.7):
         """Fragments ``(flat, depth)`` of world polylines, about ``step_px`` apart."""
-        flats, depths = [], []
+        flats, depths = [np.zeros(0, np.int64)], [np.zeros(0)]
         for pl in polylines_world:
             cam = self.view.camera(pl)
             if np.any(cam[:, 2] <= _NEAR):
                 continue
             row, col = self.screen(cam)
-            seg = np.hypot(np.diff(row), np.diff(col))
-            for i in range(len(pl) - 1):
-                m = max(int(np.ceil(seg[i] / step_px)), 1)
-                s = np.arange(m) / m
-                z = 1.0 / ((1 - s) / cam[i, 2] + s / cam[i + 1, 2])
-                r = np.rint(row[i] + s * (row[i + 1] - row[i])).astype(np.int64)
-                c = np.rint(col[i] + s * (col[i + 1] - col[i])).astype(np.int64)
-                flat, ok = self._flat(r, c)
-                flats.append(flat[ok])
-                depths.append(z[ok])
-        if not flats:
-            return np.zeros(0, np.int64), np.zeros(0)
+            m = max(int(np.ceil(np.hypot(np.diff(row), np.diff(col)).max() / step_px)), 1)
+            s = (np.arange(m) / m)[None]                                   # (1, m)
+            z0, z1 = cam[:-1, 2, None], cam[1:, 2, None]
+            z = 1.0 / ((1 - s) / z0 + s / z1)
+            r = np.rint(row[:-1, None] + s * np.diff(row)[:, None]).astype(np.int64)
+            c = np.rint(col[:-1, None] + s * np.diff(col)[:, None]).astype(np.int64)
+            flat, ok = self._flat(r, c)
+            flats.append(flat[ok])
+            depths.append(z[ok])
         return np.concatenate(flats), np.concatenate(depths)
 
     def dots(self, points, px: float) -> np.ndarray:
@@ -551,8 +567,8 @@ class _Table:
     rgb: np.ndarray      # (H*W, 3)
     depth: np.ndarray    # (H*W,)
     on_table: np.ndarray  # (H*W,) bool
-    cell: np.ndarray     # (M, 2) int shadow-grid cell of each table pixel
-    weight: np.ndarray   # (M, 2) bilinear weights
+    cell: np.ndarray     # (M, 4) flat shadow-grid cells around each table pixel
+    weight: np.ndarray   # (M, 4) their bilinear weights
 
 
 _SHADOW_GRID = 160
@@ -590,18 +606,31 @@ def _table(view: SceneView, res) -> _Table:
     idx = np.nonzero(hit)[0][inside]
     on = np.zeros(w * h, bool)
     on[idx] = True
-    table = _Table(rgb, np.where(hit, depth, np.inf), on, cell[inside].astype(np.int64),
-                   weight[inside])
+    c, f = cell[inside].astype(np.int64), weight[inside]
+    corners = np.stack([c[:, 0] * g + c[:, 1], (c[:, 0] + 1) * g + c[:, 1],
+                        c[:, 0] * g + c[:, 1] + 1, (c[:, 0] + 1) * g + c[:, 1] + 1], -1)
+    weights = np.stack([(1 - f[:, 0]) * (1 - f[:, 1]), f[:, 0] * (1 - f[:, 1]),
+                        (1 - f[:, 0]) * f[:, 1], f[:, 0] * f[:, 1]], -1)
+    table = _Table(rgb, np.where(hit, depth, np.inf), on, corners, weights)
     if len(_TABLE_CACHE) > 16:
         _TABLE_CACHE.clear()
     _TABLE_CACHE[key] = table
     return table
 
 
-def _blur_matrix(n: int, sigma_cells: float) -> np.ndarray:
-    i = np.arange(n)
-    k = np.exp(-0.5 * ((i[:, None] - i[None]) / max(sigma_cells, 1e-6)) ** 2)
-    return k / k.sum(1, keepdims=True)
+def _blur(a, sigma_x: float, sigma_y: float) -> np.ndarray:
+    """``a`` (X, Y) blurred by a Gaussian of ``sigma`` cells per axis (separable shifted
+    sums, not a BLAS product: OpenBLAS threads fight XLA's for the cores)."""
+    for axis, sigma in ((0, sigma_x), (1, sigma_y)):
+        k = max(int(np.ceil(3 * sigma)), 1)
+        taps = np.exp(-0.5 * (np.arange(-k, k + 1) / max(sigma, 1e-6)) ** 2)
+        taps /= taps.sum()
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (k, k)
+        p = np.pad(a, pad)
+        n = a.shape[axis]
+        a = sum(t * (p[i:i + n] if axis == 0 else p[:, i:i + n]) for i, t in enumerate(taps))
+    return a
 
 
 def _shadow(view: SceneView, table: _Table, points, radius: float) -> np.ndarray:
@@ -620,13 +649,8 @@ def _shadow(view: SceneView, table: _Table, points, radius: float) -> np.ndarray
     ok = (iu >= 0) & (iu < g) & (iv >= 0) & (iv < g)
     occ = np.zeros((g, g))
     occ[iu[ok], iv[ok]] = 1.0
-    bu, bv = _blur_matrix(g, SHADOW_BLUR / cx), _blur_matrix(g, SHADOW_BLUR / cy)
-    occ = bu @ occ @ bv.T
-    c, wgt = table.cell, table.weight
-    val = ((1 - wgt[:, 0]) * (1 - wgt[:, 1]) * occ[c[:, 0], c[:, 1]]
-           + wgt[:, 0] * (1 - wgt[:, 1]) * occ[c[:, 0] + 1, c[:, 1]]
-           + (1 - wgt[:, 0]) * wgt[:, 1] * occ[c[:, 0], c[:, 1] + 1]
-           + wgt[:, 0] * wgt[:, 1] * occ[c[:, 0] + 1, c[:, 1] + 1])
+    occ = _blur(occ, SHADOW_BLUR / cx, SHADOW_BLUR / cy)
+    val = np.sum(occ.ravel()[table.cell] * table.weight, axis=1)
     return SHADOW * np.clip(val, 0.0, 1.0)
 
 
@@ -667,7 +691,8 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
     if mesh:
         frags.append(cv.triangles(points[faces], None,
                                   two_sided_kinds=(sign, CLOTH_BACK),
-                                  vertex_colors=colors[faces]))
+                                  vertex_colors=colors[faces],
+                                  vertex_shade=_vertex_shade(points, faces)[faces]))
     else:
         frags.append(cv.spheres(points, view.radius, colors, _PARTICLE, light_cam))
     if ee is not None:
@@ -681,18 +706,31 @@ def _draw(view, res, table, *, points, colors, faces, sign, ee, shapes, shadow_r
         tris = np.concatenate([s.world(s.tris.reshape(-1, 3)).reshape(-1, 3, 3)
                                for s in shapes])
         glass = cv.triangles(tris, np.broadcast_to(GLASS, (len(tris), 3)),
-                             kinds=np.zeros(len(tris), np.int8))
+                             kinds=np.zeros(len(tris), np.int8), cull_back=True)
         cv.glass(glass, GLASS_ALPHA)
         flat, depth = cv.lines([s.world(r) for s in shapes for r in s.rims])
         vis = depth <= cv.depth[flat] + 0.5 * view.marker
         cv.blend(np.unique(flat[vis]), RIM, 0.8)
     # the goal, over everything
     if goal is not None:
-        cv.blend(cv.dots(goal, max(1.0, 0.005 * max(cv.w, cv.h))), GOAL, GOAL_ALPHA)
+        dots = goal[::max(1, -(-len(goal) // GOAL_DOTS))]
+        cv.blend(cv.dots(dots, max(1.0, 0.005 * max(cv.w, cv.h))), GOAL, GOAL_ALPHA)
         if goal_edges is not None:
             flat, _ = cv.lines(list(goal[goal_edges]))
             cv.blend(np.unique(flat), GOAL, GOAL_EDGE_ALPHA)
     return cv.image()
+
+
+def _vertex_shade(points, faces) -> np.ndarray:
+    """Lambert plus ambient (V,) of a mesh's vertices with smooth normals (the faces'
+    area-weighted normals summed per vertex), lit from either side."""
+    tri = points[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], n)
+    vn /= np.linalg.norm(vn, axis=1, keepdims=True) + 1e-30
+    return AMBIENT + DIFFUSE * np.abs(vn @ LIGHT)
 
 
 def _mesh_samples(points, faces):
@@ -713,6 +751,10 @@ def _shadow_radius(view: SceneView, points, faces) -> float:
 
 
 # --------------------------------------------------------------------------- public
+#: The jitted (object points, end effector) of a stacked episode, per env (compiled once).
+_POINTS_FNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def _episode(env, states):
     """Host arrays of a stacked episode: points (T, N, 3), end effector (T, 3), T."""
     t = getattr(states, "t", None)
@@ -734,7 +776,10 @@ def _episode(env, states):
         if not shape or shape[0] != n:
             raise ValueError(f"states.physics{jax.tree_util.keystr(path)} has shape {shape}, "
                              f"not a leading time axis of {n} like state.t")
-    fn = jax.jit(jax.vmap(lambda p: (env.object_points(p), env.end_effector(p))))
+    fn = _POINTS_FNS.get(env)
+    if fn is None:
+        fn = jax.jit(jax.vmap(lambda p: (env.object_points(p), env.end_effector(p))))
+        _POINTS_FNS[env] = fn
     pts, ee = fn(physics)
     return np.asarray(pts, np.float64), np.asarray(ee, np.float64), n
 
