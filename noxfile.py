@@ -15,6 +15,8 @@ The sibling packages are not on any index: they are always installed from packag
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
 from pathlib import Path
 
 import nox
@@ -104,18 +106,38 @@ def _assert_importable(session: nox.Session, modules: list[str]) -> None:
 PARALLEL = ["-n", "auto", "--maxprocesses", "4", "--dist", "loadfile"]
 
 
-def _pytest(session: nox.Session, *paths: str, parallel: bool = True) -> None:
+def _pytest(session: nox.Session, *paths: str, parallel: bool = True, env=None) -> None:
     args = PARALLEL if parallel else []
-    session.run("pytest", *args, *paths, *session.posargs, env=PYTEST_ENV)
+    session.run("pytest", *args, *paths, *session.posargs, env={**PYTEST_ENV, **(env or {})})
 
 
-def _package_session(session: nox.Session, dist: str) -> None:
+BROWSERS = ("chromium", "chromium-browser", "google-chrome")
+
+
+def _browser_env(session: nox.Session) -> dict:
+    """PATH for the results-page browser test: the machine's Chromium if it has one, else
+    Debian's unpacked by `.ci/chromium` into the user cache (no root, nothing installed
+    system-wide; reused on later runs). Where neither can be had (no apt, no mirror, or
+    DAX_NO_BROWSER=1) the test skips and says why."""
+    if any(shutil.which(b) for b in BROWSERS) or os.environ.get("DAX_NO_BROWSER") == "1":
+        return {}
+    got = subprocess.run(["bash", ".ci/chromium"], capture_output=True, text=True,
+                         timeout=900, check=False)
+    if got.returncode != 0:
+        reason = (got.stderr.strip().splitlines() or ["unknown failure"])[-1]
+        session.log(f"no browser for the page test ({reason}); it will skip")
+        return {}
+    session.log(f"browser for the page test: {got.stdout.strip()}/chromium")
+    return {"PATH": got.stdout.strip() + os.pathsep + os.environ.get("PATH", "")}
+
+
+def _package_session(session: nox.Session, dist: str, env=None) -> None:
     """Install `dist` with its test extra and its siblings (without theirs); run its tests."""
     _install_local(session, [dist, *SIBLINGS[dist]], extras={dist: "test"})
     higher = [_module(d) for d in LAYERS[LAYERS.index(dist) + 1 :]]
     forbidden = higher + (NOT_IN_PHYSICS if dist == "dax-physics" else [])
     _assert_not_importable(session, forbidden)
-    _pytest(session, f"packages/{dist}/tests")
+    _pytest(session, f"packages/{dist}/tests", env=env)
 
 
 @nox.session
@@ -138,8 +160,9 @@ def data(session: nox.Session) -> None:
 
 @nox.session
 def algos(session: nox.Session) -> None:
-    """dax-algos with all its siblings."""
-    _package_session(session, "dax-algos")
+    """dax-algos with all its siblings; the results page is also checked in a headless
+    Chromium (see `_browser_env`)."""
+    _package_session(session, "dax-algos", env=_browser_env(session))
 
 
 @nox.session
