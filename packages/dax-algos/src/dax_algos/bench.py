@@ -9,8 +9,12 @@ compiles the episode once (``jax.jit(...).lower(key, params).compile()``, timed 
 ``fold_in(key, 0)``, the same for every method). The **episode score is the final-step
 ``r_gt``**. Every finished run is appended to ``results.csv`` at once (one flushed, fsynced
 write per row); started again, the runner skips the (task, method, seed, budget) rows already
-there. At the end it rewrites ``results.md`` (mean ± standard error, methods x tasks) and
-``chart_<task>.png`` (score against wall time and simulated environment steps).
+there. Beside each row it records the episode (start key and actions,
+``episodes/<task>/<method>/seed<k>.npz``, :mod:`dax_algos.episodes`). At the end it
+rewrites ``results.md`` (mean ± standard error, methods x tasks), ``chart_<task>.png``
+(score against wall time and simulated environment steps) and the results page
+``index.html`` (:mod:`dax_algos.page`, with each (task, method)'s median episode replayed
+and drawn); ``dax-bench report --out DIR`` rewrites them.
 
 A run fails (``status=failed``, cause in ``error``) when it raises, when a state, action or
 reward turns non-finite (the task's ``finite`` flag), or when a gradient is non-finite
@@ -23,10 +27,14 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import datetime
+import importlib.metadata
 import io
 import json
 import math
 import os
+import platform
+import shlex
 import sys
 import tempfile
 import time
@@ -41,7 +49,7 @@ from tqdm.auto import tqdm
 import dax_tasks
 from dax_tasks.io import atomic_write, exclusive
 
-from . import common, csvlog, demos, learning, registry, report, trained
+from . import common, csvlog, demos, episodes, learning, page, registry, report, trained
 
 COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
            "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
@@ -224,39 +232,85 @@ def check_out(out: Path) -> Path:
     return out / "results.csv"
 
 
-def _check_run(out: Path, rows: list, config: dict) -> None:
+def read_run_file(out: Path) -> dict:
+    """``out/run.json`` (``{}`` if there is none); ``ValueError`` naming it if unreadable."""
+    path = Path(out) / RUN_FILE
+    if not path.exists():
+        return {}
+    try:
+        old = json.loads(path.read_text())
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except ValueError as err:  # UnicodeDecodeError and JSONDecodeError too
+        raise ValueError(f"{path}: unreadable run file ({err}); use another --out "
+                         f"directory") from None
+    return old
+
+
+#: the packages whose versions a run records (run.json) and the results page shows
+VERSIONED = ("dax-physics", "dax-tasks", "dax-data", "dax-algos", "jax", "jaxlib", "numpy",
+             "flax", "optax", "matplotlib", "pillow")
+
+
+def machine_info() -> dict:
+    """The machine a run ran on: platform, Python, CPU count, JAX backend and devices."""
+    return {"platform": platform.platform(), "python": platform.python_version(),
+            "cpu_count": os.cpu_count(), "jax_backend": jax.default_backend(),
+            "jax_devices": [str(d) for d in jax.devices()]}
+
+
+def package_versions() -> dict:
+    """``{package: version}`` of :data:`VERSIONED` (``"not installed"`` for a missing one)."""
+    out = {}
+    for name in VERSIONED:
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _check_run(out: Path, rows: list, config: dict, command: str) -> None:
     """Refuse to add to ``out`` results made with other task or method overrides (they
     would be mixed with, or silently stand in for, this run's); record them on first
-    use in ``out/run.json``."""
+    use in ``out/run.json``, and with them each new command line (``invocations``: the
+    command, when it started, the machine and the package versions; a resumed run with
+    the same command adds nothing)."""
     path = out / RUN_FILE
-    if path.exists():
-        try:
-            old = json.loads(path.read_text())
-            if not isinstance(old, dict):
-                raise ValueError("not a JSON object")
-        except ValueError as err:  # UnicodeDecodeError and JSONDecodeError too
-            raise ValueError(f"{path}: unreadable run file ({err}); use another --out "
-                             f"directory") from None
-    elif rows:  # results from before run files: runs without overrides (all the CLI makes)
+    old = read_run_file(out)
+    if not old and rows:  # results from before run files: runs without overrides
         old = {"task_overrides": {}, "method_overrides": {}}
-    else:
-        atomic_write(path, json.dumps(config, indent=1, sort_keys=True) + "\n")
-        return
     for key in ("task_overrides", "method_overrides"):
-        if old.get(key, {}) != config[key]:
+        if old and old.get(key, {}) != config[key]:
             raise ValueError(
                 f"{out}: holds results made with other {key.replace('_', ' ')} "
                 f"({json.dumps(old.get(key, {}), sort_keys=True)[:200]}, now "
                 f"{json.dumps(config[key], sort_keys=True)[:200]}); use another --out "
                 f"directory")
-    if not path.exists():
-        atomic_write(path, json.dumps(config, indent=1, sort_keys=True) + "\n")
+    new = {**config, **old}
+    invocations = list(new.get("invocations", []))
+    if not any(isinstance(i, dict) and i.get("command") == command for i in invocations):
+        started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        invocations.append({"command": command, "started": started,
+                            "machine": machine_info(), "versions": package_versions()})
+    new["invocations"] = invocations
+    if new != old:
+        atomic_write(path, json.dumps(new, indent=1, sort_keys=True) + "\n")
+
+
+def cli_command(tasks, methods, seeds, out, quick) -> str:
+    """The ``dax-bench run`` command line that runs this grid (what ``run.json`` records
+    when :func:`run_grid` is called from Python)."""
+    parts = ["dax-bench", "run", "--tasks", ",".join(tasks), "--methods", ",".join(methods),
+             "--seeds", str(seeds), *(["--quick"] if quick else []), "--out", str(out)]
+    return shlex.join(parts)
 
 
 def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
-             progress: bool = True, demo_dir: str | os.PathLike | None = None) -> list[dict]:
+             progress: bool = True, demo_dir: str | os.PathLike | None = None,
+             command: str | None = None) -> list[dict]:
     """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
 
     task_overrides: ``{task: {TaskSpec field or lam/aux_weight: value}}`` passed to
@@ -264,6 +318,8 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     {config field: value}}`` on top of the budget. cache_goal: passed to
     ``dax_tasks.make``. demo_dir: where the imitation methods' demonstration sets are made
     or reused (default ``$DAX_CACHE_DIR/demos``, :func:`dax_data.standard.cache_dir`).
+    command: the command line recorded in ``run.json`` (default: the equivalent
+    ``dax-bench run`` command, :func:`cli_command`).
 
     Before any work: ``out`` must be (or become) a writable directory whose
     ``results.csv`` is a results file (:func:`check_out`, :func:`read_rows`), no other run
@@ -284,7 +340,8 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
               "method_overrides": _canonical(method_overrides)}
     with exclusive(csv_path):
         rows = read_rows(csv_path)
-        _check_run(out, rows, config)
+        _check_run(out, rows, config, command or cli_command(
+            task_names, method_names, seeds, out, quick))
         return _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, rows,
                                 task_overrides, method_overrides, cache_goal, progress,
                                 demo_dir)
@@ -300,12 +357,14 @@ def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, row
 
     bar = tqdm(total=len(todo), desc="dax-bench", unit="run", disable=not progress,
                file=sys.stderr)
+    envs = {}
     for t in task_names:
         t_todo = [(m, s) for tt, m, s in todo if tt == t]
         if not t_todo:
             continue
         try:
-            env = dax_tasks.make(t, cache_goal=cache_goal, **task_overrides.get(t, {}))
+            env = envs[t] = dax_tasks.make(t, cache_goal=cache_goal,
+                                           **task_overrides.get(t, {}))
         except Exception as err:  # noqa: BLE001 - recorded, the grid continues
             for m, s in t_todo:
                 append_row(csv_path, _row(t, m, s, budget, status="failed",
@@ -322,7 +381,14 @@ def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, row
         jax.clear_caches()
     bar.close()
     rows = read_rows(csv_path)
-    write_reports(rows, out, budget)
+
+    def make_env(task):  # the task as this run built it
+        if task not in envs:
+            envs[task] = dax_tasks.make(task, cache_goal=cache_goal,
+                                        **task_overrides.get(task, {}))
+        return envs[task]
+
+    write_reports(rows, out, budget, make_env)
     return rows
 
 
@@ -363,6 +429,9 @@ def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar, demo_dir=Non
             wall = time.perf_counter() - t0
             row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s,
                        **evaluate(out, runnable))
+            episodes.save_episode(episodes.episode_path(csv_path.parent, t, m, s),
+                                  episodes.planner_reset_key(s), out.actions, out.score,
+                                  env.spec.fingerprint(), budget=budget)
         except Exception as err:  # noqa: BLE001
             row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
                        error=_error_text(err))
@@ -400,6 +469,11 @@ def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, com
             if runnable.train_env_steps:  # no curve for training on demonstrations only
                 learning.append_curve(learning.learning_path(out_dir, t), curve)
             values = evaluate(one.episode, runnable)
+            ep = one.episode
+            episodes.save_episode(episodes.episode_path(out_dir, t, m, s),
+                                  episodes.learner_reset_key(s, config.n_eval), ep.actions,
+                                  ep.actions_score, env.spec.fingerprint(), rollout=0,
+                                  n_rollouts=config.n_eval, budget=budget)
             if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(one.policy)):
                 trained.save_trained(out_dir / "policies" / t / m / f"seed{s}.msgpack", m,
                                      env, config, one.policy, seed=int(s), budget=budget)
@@ -411,8 +485,11 @@ def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, com
         bar.update()
 
 
-def write_reports(rows, out: Path, budget: str) -> None:
-    """Rewrite ``results.md`` and the charts from the rows of ``budget``."""
+def write_reports(rows, out: Path, budget: str, make_env=None) -> Path:
+    """Rewrite ``results.md``, the charts and the results page (``index.html``, with the
+    median seed's episode of each (task, method) drawn unless it already is) from the rows
+    of ``budget``; returns the page's path. ``make_env(task)`` builds a task as the run did
+    (default: with the task overrides recorded in ``run.json``)."""
     rows = [r for r in rows if r["budget"] == budget]
     text = report.markdown(rows, dax_tasks.TASKS, registry.names(),
                            title=f"DaX benchmark ({budget} budget)")
@@ -423,6 +500,67 @@ def write_reports(rows, out: Path, budget: str) -> None:
         path = learning.learning_path(out, task)
         if path.exists():
             learning.charts(learning.read_curves(path, keep=done), out, registry.names())
+    run = read_run_file(out)
+    if make_env is None:
+        overrides = run.get("task_overrides", {})
+
+        def make_env(task):
+            return dax_tasks.make(task, **overrides_from_json(task, overrides.get(task, {})))
+
+    tasks = _order(dax_tasks.TASKS, rows, "task")
+    methods = _order(registry.names(), rows, "method")
+    pictures = episodes.episode_pictures(out, rows, make_env, tasks, methods)
+    return page.write_page(out, rows, run, pictures, tasks, methods,
+                           title=f"DaX benchmark ({budget} budget)")
+
+
+def report_dir(out, budget: str | None = None) -> Path:
+    """Write the reports of the output directory ``out`` again (:func:`write_reports`,
+    holding its results' lock); returns the page's path. ``budget``: whose rows (default:
+    the last row's). ``ValueError`` naming the problem for a directory without results."""
+    out = Path(out)
+    csv_path = out / "results.csv"
+    if not csv_path.is_file():
+        raise ValueError(f"{csv_path}: no such results file (run dax-bench run --out {out} "
+                         f"first)")
+    with exclusive(csv_path):
+        rows = read_rows(csv_path)
+        if not rows:
+            raise ValueError(f"{csv_path}: holds no runs")
+        budget = rows[-1]["budget"] if budget is None else budget
+        if not any(r["budget"] == budget for r in rows):
+            raise ValueError(f"{csv_path}: holds no runs of the {budget} budget")
+        return write_reports(rows, out, budget)
+
+
+def _order(preferred, rows, col) -> list:
+    seen = list(dict.fromkeys(r[col] for r in rows))
+    return [x for x in preferred if x in seen] + sorted(x for x in seen if x not in preferred)
+
+
+def overrides_from_json(task: str, data: Mapping) -> dict:
+    """A task's ``make`` overrides from their ``run.json`` form (:func:`_canonical`): a
+    scene recorded by class and fields is rebuilt from the task's default scene, lists
+    become tuples where the default is one."""
+    spec = dax_tasks.get_spec(task)
+
+    def decode(default, value):
+        if isinstance(value, Mapping) and "__class__" in value:
+            if not dataclasses.is_dataclass(default) \
+                    or type(default).__name__ != value["__class__"]:
+                raise ValueError(f"run.json: task {task}: cannot rebuild a "
+                                 f"{value['__class__']} (the task's is "
+                                 f"{type(default).__name__})")
+            fields = {k: decode(getattr(default, k, None), v) for k, v in value.items()
+                      if k != "__class__"}
+            return dataclasses.replace(default, **fields)
+        if isinstance(value, list) and isinstance(default, tuple):
+            like = [default[min(i, len(default) - 1)] if default else None
+                    for i in range(len(value))]
+            return tuple(decode(d, v) for d, v in zip(like, value, strict=True))
+        return value
+
+    return {k: decode(getattr(spec, k, None), v) for k, v in data.items()}
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -440,6 +578,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="where the imitation methods' demonstration sets are recorded or "
                           "reused (default: $DAX_CACHE_DIR/demos, ~/.cache/dax/demos)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    rep = sub.add_parser("report", help="write the results page (index.html) and tables of "
+                                        "an output directory again")
+    rep.add_argument("--out", default="results", help="output directory of a run")
+    rep.add_argument("--budget", default=None, choices=registry.BUDGETS,
+                     help="the budget's rows (default: the budget of the last row)")
     sub.add_parser("list", help="list the tasks and methods")
     return p
 
@@ -462,8 +605,13 @@ def main(argv=None) -> int:
         return 0
     _default_compilation_cache()
     try:
+        if args.command == "report":
+            index = report_dir(args.out, args.budget)
+            print(index.resolve())
+            return 0
+        command = shlex.join(["dax-bench", *(sys.argv[1:] if argv is None else argv)])
         rows = run_grid(args.tasks, args.methods, args.seeds, args.out, quick=args.quick,
-                        progress=not args.no_progress, demo_dir=args.demos)
+                        progress=not args.no_progress, demo_dir=args.demos, command=command)
     except (ValueError, OSError) as err:  # FileLockedError is an OSError
         msg = " ".join(str(err).split()) or type(err).__name__
         print(f"dax-bench: error: {msg}", file=sys.stderr)
@@ -474,7 +622,8 @@ def main(argv=None) -> int:
         return 130
     failed = sum(r["status"] == "failed" for r in rows)
     print(f"{len(rows)} rows in {Path(args.out) / 'results.csv'} ({failed} failed); "
-          f"table: {Path(args.out) / 'results.md'}")
+          f"table: {Path(args.out) / 'results.md'}; results page:")
+    print((Path(args.out) / page.PAGE).resolve())  # the last line: the page to open
     return 0
 
 

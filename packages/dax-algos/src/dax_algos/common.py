@@ -134,7 +134,9 @@ class EpisodeOutput(NamedTuple):
     """Result of one episode (arrays; leading axis = environment step where it has one).
 
     score: final-step ``r_gt`` (the evaluation score); r_gt, reward, distance, finite: per step;
-    actions: the executed actions; stats: :class:`PlanStats` per step.
+    actions: the executed actions; stats: :class:`PlanStats` per step; actions_score: the
+    final-step ``r_gt`` of the one episode ``actions`` come from where ``score`` is a mean
+    over several (a learner's evaluation rollouts), ``None`` where it is ``score``.
     """
 
     score: jnp.ndarray
@@ -144,6 +146,7 @@ class EpisodeOutput(NamedTuple):
     finite: jnp.ndarray
     actions: jnp.ndarray
     stats: PlanStats
+    actions_score: jnp.ndarray | None = None
 
 
 def make_episode(env, planner: Planner) -> Callable:

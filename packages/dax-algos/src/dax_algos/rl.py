@@ -178,10 +178,12 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
     the deterministic policy ``act(policy, inputs(obs, t)) -> z`` from starts drawn from
     ``key``, rewards with ``params`` (r_gt only for the task's default params); ``inputs``
     defaults to :func:`features`. The output's per-step fields are means over the rollouts
-    (``finite``: all of them), ``actions`` are those of the first rollout and ``score`` the
-    mean final-step r_gt. With ``per_rollout`` nothing is averaged: every field has the
-    rollouts as its first axis (``score``: each rollout's final-step r_gt), for a standard
-    error over the evaluation starts."""
+    (``finite``: all of them), ``actions`` are those of the first rollout (its start is
+    ``split(key, n_rollouts)[0]``, its final-step r_gt ``actions_score``: what the runner
+    records to replay and draw the episode) and ``score`` the mean final-step r_gt. With
+    ``per_rollout`` nothing is averaged: every field has the rollouts as its first axis
+    (``score``: each rollout's final-step r_gt), for a standard error over the evaluation
+    starts."""
     horizon = env.horizon
     if inputs is None:
         def inputs(obs, t):
@@ -212,7 +214,7 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
         return common.EpisodeOutput(
             score=jnp.mean(r_gt[:, -1]), r_gt=jnp.mean(r_gt, 0), reward=jnp.mean(reward, 0),
             distance=jnp.mean(dist, 0), finite=jnp.all(finite, 0), actions=actions[0],
-            stats=None)
+            stats=None, actions_score=r_gt[0, -1])
 
     return evaluate
 
