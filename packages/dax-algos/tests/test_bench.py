@@ -1,6 +1,7 @@
 """The benchmark runner: files, failure recording, resuming, name errors, the CLI."""
 
 import csv
+import sys
 
 import jax.numpy as jnp
 import pytest
@@ -129,6 +130,17 @@ def test_cli_unknown_name_is_a_one_line_error_with_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("dax-bench: error: unknown task") and "\n" not in err, err
     assert bench.main(["run", "--methods", "all,nope", "--out", str(tmp_path)]) == 2
+    assert not (tmp_path / "results.csv").exists()
+
+
+def test_backend_ray_without_ray_is_a_one_line_error_with_exit_2(tmp_path, capsys,
+                                                                  monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    assert bench.main(["run", "--tasks", TASK, "--methods", "random", "--backend", "ray",
+                       "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("dax-bench: error: --backend ray needs Ray") and "\n" not in err
+    assert "pip install 'dax-algos[ray]'" in err, err
     assert not (tmp_path / "results.csv").exists()
 
 

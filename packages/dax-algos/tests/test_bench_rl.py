@@ -1,4 +1,4 @@
-"""The runner with the RL methods: seeds trained under vmap, rows, learning curves
+"""The runner with the RL methods: seeds trained one by one, rows, learning curves
 (CSV + chart), policy files that load for their task and are refused for another, and
 resuming."""
 
@@ -87,7 +87,7 @@ def test_resume_runs_nothing_twice(grid, monkeypatch):
     before = (out / "results.csv").read_text()
     curves_before = learning.learning_path(out, TASK).read_text()
     calls = []
-    monkeypatch.setattr(bench, "_run_learner", lambda *a, **k: calls.append(a[2]))
+    monkeypatch.setattr(bench, "_learner_result", lambda *a, **k: calls.append(a[2]))
     again = _run(out)
     assert calls == [] and len(again) == len(rows)
     assert (out / "results.csv").read_text() == before

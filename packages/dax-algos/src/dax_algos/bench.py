@@ -42,14 +42,27 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 import dax_tasks
 from dax_tasks.io import atomic_write, exclusive
 
-from . import common, csvlog, demos, episodes, learning, page, registry, report, trained
+from . import (
+    common,
+    csvlog,
+    demos,
+    episodes,
+    learning,
+    page,
+    policy_io,
+    registry,
+    report,
+    trained,
+)
+
+#: where the runs of a grid run (``--backend``)
+BACKENDS = ("local", "ray")
 
 COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance", "wall_s",
            "compile_s", "env_steps", "backprop_steps", "grad_norm", "grad_norm_mean",
@@ -298,11 +311,13 @@ def _check_run(out: Path, rows: list, config: dict, command: str) -> None:
         atomic_write(path, json.dumps(new, indent=1, sort_keys=True) + "\n")
 
 
-def cli_command(tasks, methods, seeds, out, quick) -> str:
+def cli_command(tasks, methods, seeds, out, quick, backend="local", ray_address=None) -> str:
     """The ``dax-bench run`` command line that runs this grid (what ``run.json`` records
     when :func:`run_grid` is called from Python)."""
     parts = ["dax-bench", "run", "--tasks", ",".join(tasks), "--methods", ",".join(methods),
-             "--seeds", str(seeds), *(["--quick"] if quick else []), "--out", str(out)]
+             "--seeds", str(seeds), *(["--quick"] if quick else []), "--out", str(out),
+             *(["--backend", backend] if backend != "local" else []),
+             *(["--ray-address", ray_address] if ray_address else [])]
     return shlex.join(parts)
 
 
@@ -310,7 +325,8 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
              progress: bool = True, demo_dir: str | os.PathLike | None = None,
-             command: str | None = None) -> list[dict]:
+             command: str | None = None, backend: str = "local",
+             ray_address: str | None = None, ray_cpus: float = 1) -> list[dict]:
     """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
 
     task_overrides: ``{task: {TaskSpec field or lam/aux_weight: value}}`` passed to
@@ -321,6 +337,13 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     command: the command line recorded in ``run.json`` (default: the equivalent
     ``dax-bench run`` command, :func:`cli_command`).
 
+    backend: ``"local"`` (this process) or ``"ray"``: every (task, method, seed) is one Ray
+    task (:func:`dax_algos.backends.run_ray`) on the cluster at ``ray_address`` (default:
+    ``RAY_ADDRESS``, else a Ray instance started on this machine; an already initialised
+    Ray is used as it is), each reserving ``ray_cpus`` CPUs; this process alone writes
+    ``out``, recording each run as its task finishes. The rows are those of the local
+    backend (their order is the order runs finish in).
+
     Before any work: ``out`` must be (or become) a writable directory whose
     ``results.csv`` is a results file (:func:`check_out`, :func:`read_rows`), no other run
     may be writing it (its lock, ``.results.csv.lock``, :func:`dax_tasks.io.exclusive`:
@@ -329,6 +352,12 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     error naming the path."""
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    if backend == "ray":
+        from . import backends
+
+        backends.require_ray()
     if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
         raise ValueError(f"seeds must be a positive int, got {seeds!r}")
     budget = "quick" if quick else "full"
@@ -341,15 +370,16 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     with exclusive(csv_path):
         rows = read_rows(csv_path)
         _check_run(out, rows, config, command or cli_command(
-            task_names, method_names, seeds, out, quick))
+            task_names, method_names, seeds, out, quick, backend, ray_address))
         return _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, rows,
                                 task_overrides, method_overrides, cache_goal, progress,
-                                demo_dir)
+                                demo_dir, backend, dict(address=ray_address,
+                                                        num_cpus=ray_cpus))
 
 
 def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, rows,
                      task_overrides, method_overrides, cache_goal, progress,
-                     demo_dir) -> list[dict]:
+                     demo_dir, backend="local", ray_options=None) -> list[dict]:
     """:func:`run_grid` while holding the results' lock."""
     done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows}
     todo = [(t, m, s) for t in task_names for m in method_names for s in range(seeds)
@@ -357,29 +387,23 @@ def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, row
 
     bar = tqdm(total=len(todo), desc="dax-bench", unit="run", disable=not progress,
                file=sys.stderr)
+
+    def finished(result):  # the driver alone writes the output directory
+        record(out, result)
+        bar.update()
+
     envs = {}
-    for t in task_names:
-        t_todo = [(m, s) for tt, m, s in todo if tt == t]
-        if not t_todo:
-            continue
-        try:
-            env = envs[t] = dax_tasks.make(t, cache_goal=cache_goal,
-                                           **task_overrides.get(t, {}))
-        except Exception as err:  # noqa: BLE001 - recorded, the grid continues
-            for m, s in t_todo:
-                append_row(csv_path, _row(t, m, s, budget, status="failed",
-                                          error="building the task: " + _error_text(err)))
-                bar.update()
-            continue
-        for m in method_names:
-            m_seeds = [s for mm, s in t_todo if mm == m]
-            if not m_seeds:
-                continue
-            bar.set_postfix_str(f"{t} / {m}")
-            _run_method(env, t, m, m_seeds, budget, method_overrides.get(m, {}), csv_path,
-                        bar, demo_dir, task_overrides.get(t))
-        jax.clear_caches()
-    bar.close()
+    try:
+        if backend == "ray":
+            from . import backends
+
+            backends.run_ray(todo, budget, task_overrides, method_overrides, cache_goal,
+                             demo_dir, finished, **(ray_options or {}))
+        else:
+            _run_local(todo, task_names, method_names, budget, task_overrides,
+                       method_overrides, cache_goal, demo_dir, envs, finished, bar)
+    finally:
+        bar.close()
     rows = read_rows(csv_path)
 
     def make_env(task):  # the task as this run built it
@@ -392,97 +416,154 @@ def _run_grid_locked(task_names, method_names, seeds, out, csv_path, budget, row
     return rows
 
 
-def _run_method(env, t, m, seeds, budget, overrides, csv_path, bar, demo_dir=None,
-                task_overrides=None):
-    method = registry.get(m)
-    params = env.default_params
+def _run_local(todo, task_names, method_names, budget, task_overrides, method_overrides,
+               cache_goal, demo_dir, envs, finished, bar) -> None:
+    """The runs of ``todo`` in this process, task by task (each built once, kept in
+    ``envs``) and method by method (each compiled once for all its seeds)."""
+    for t in task_names:
+        t_todo = [(m, s) for tt, m, s in todo if tt == t]
+        if not t_todo:
+            continue
+        try:
+            env = envs[t] = dax_tasks.make(t, cache_goal=cache_goal,
+                                           **task_overrides.get(t, {}))
+        except Exception as err:  # noqa: BLE001 - recorded, the grid continues
+            for m, s in t_todo:
+                finished(_task_failed(t, m, s, budget, err))
+            continue
+        for m in method_names:
+            m_seeds = [s for mm, s in t_todo if mm == m]
+            if not m_seeds:
+                continue
+            bar.set_postfix_str(f"{t} / {m}")
+            for result in _run_method(env, t, m, m_seeds, budget, method_overrides.get(m, {}),
+                                      demo_dir, task_overrides.get(t)):
+                finished(result)
+        jax.clear_caches()
+
+
+@dataclasses.dataclass
+class SeedResult:
+    """One finished (task, method, seed) as plain data (NumPy arrays, dicts), so that it can
+    come back from another process: its results row and what is recorded beside it."""
+
+    row: dict
+    #: :func:`episodes.save_episode`'s arguments after the path
+    episode: dict | None = None
+    #: the learning curve's rows (:func:`learning.append_curve`)
+    curve: list | None = None
+    #: ``(tree, meta)`` of the trained policy (:func:`trained.trained_record`)
+    policy: tuple | None = None
+
+
+def record(out: Path, result: SeedResult) -> None:
+    """Write ``result`` into the output directory ``out``: its learning curve (before the
+    row, so a resumed run never lacks one), episode recording and policy file, then its
+    results row (one atomic append). If a file cannot be written, the row says so
+    (``failed``)."""
+    row = result.row
+    t, m, s, budget = row["task"], row["method"], row["seed"], row["budget"]
     try:
+        if result.curve:
+            learning.append_curve(learning.learning_path(out, t), result.curve)
+        if result.episode is not None:
+            episodes.save_episode(episodes.episode_path(out, t, m, s), **result.episode)
+        if result.policy is not None:
+            policy_io.save_policy(out / "policies" / t / m / f"seed{s}.msgpack",
+                                  *result.policy)
+    except Exception as err:  # noqa: BLE001
+        row = _row(t, m, s, budget, status="failed", compile_s=row.get("compile_s", ""),
+                   error=_error_text(err))
+    append_row(out / "results.csv", row)
+
+
+def _task_failed(t, m, s, budget, err) -> SeedResult:
+    return SeedResult(_row(t, m, s, budget, status="failed",
+                           error="building the task: " + _error_text(err)))
+
+
+def run_one(task: str, method: str, seed: int, budget: str, task_overrides: Mapping,
+            method_overrides: Mapping, cache_goal: bool = True,
+            demo_dir: str | None = None) -> SeedResult:
+    """One (task, method, seed) from plain data, in a process of its own (a Ray worker):
+    builds the task and the method, compiles and runs the seed; writes nothing (the driver
+    records the result, :func:`record`)."""
+    _default_compilation_cache()
+    try:
+        env = dax_tasks.make(task, cache_goal=cache_goal, **task_overrides)
+    except Exception as err:  # noqa: BLE001
+        return _task_failed(task, method, seed, budget, err)
+    (result,) = _run_method(env, task, method, [seed], budget, method_overrides, demo_dir,
+                            task_overrides or None)
+    return result
+
+
+def _run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_overrides=None):
+    """The :class:`SeedResult` of each of ``seeds`` (a generator): the method's episode is
+    built and compiled once, then called per seed with ``PRNGKey(seed)``. Every seed is
+    computed the same way whichever seeds run with it (and under either backend), so its
+    values do not depend on the grid: a learner's seeds are not batched under ``vmap``."""
+    params = env.default_params
+    try:  # (a method registered in the driver only is unknown to a Ray worker: a failed row)
+        method = registry.get(m)
         config = method.config(budget, t, **overrides)
         runnable = method.build(env, config)
         data = ()
         if runnable.demos is not None:  # an imitation method: its demonstrations first
             path = demos.locate(env, runnable.demos, demo_dir, task_overrides)
             data = (runnable.demos.load(env, path),)
-        key0 = jax.random.PRNGKey(0)
         t0 = time.perf_counter()
-        if runnable.learns:  # seeds trained together under vmap (the PureJaxRL pattern)
-            keys = jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds))
-            batched = jax.vmap(runnable.episode, in_axes=(0, None) + (None,) * len(data))
-            compiled = jax.jit(batched).lower(keys, params, *data).compile()
-        else:
-            compiled = jax.jit(runnable.episode).lower(key0, params).compile()
+        compiled = jax.jit(runnable.episode).lower(jax.random.PRNGKey(0), params,
+                                                   *data).compile()
         compile_s = time.perf_counter() - t0
     except Exception as err:  # noqa: BLE001
         status = "skipped" if isinstance(err, common.NotApplicable) else "failed"
         for s in seeds:
-            append_row(csv_path, _row(t, m, s, budget, status=status, error=_error_text(err)))
-            bar.update()
-        return
-    if runnable.learns:
-        _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
-                     csv_path, bar, data)
+            yield SeedResult(_row(t, m, s, budget, status=status, error=_error_text(err)))
         return
     for s in seeds:
         try:
             t0 = time.perf_counter()
-            out = jax.device_get(jax.block_until_ready(compiled(jax.random.PRNGKey(s), params)))
+            out = jax.device_get(jax.block_until_ready(
+                compiled(jax.random.PRNGKey(s), params, *data)))
             wall = time.perf_counter() - t0
-            row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s,
-                       **evaluate(out, runnable))
-            episodes.save_episode(episodes.episode_path(csv_path.parent, t, m, s),
-                                  episodes.planner_reset_key(s), out.actions, out.score,
-                                  env.spec.fingerprint(), budget=budget)
+            make = _learner_result if runnable.learns else _planner_result
+            result = make(env, t, m, s, budget, config, runnable, out, wall, compile_s)
         except Exception as err:  # noqa: BLE001
-            row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
-                       error=_error_text(err))
-        append_row(csv_path, row)
-        bar.update()
+            result = SeedResult(_row(t, m, s, budget, status="failed", compile_s=compile_s,
+                                     error=_error_text(err)))
+        yield result
 
 
-def _run_learner(env, t, m, seeds, budget, config, runnable, compiled, keys, compile_s,
-                 csv_path, bar, data=()):
-    """Train every seed in one vmapped call, then per seed: its learning curve (appended
-    to ``learning_<task>.csv`` before its results row, so a resumed run never lacks one),
-    its policy file (``policies/<task>/<method>/seed<k>.msgpack``) and its results row.
-    ``wall_s`` of a seed is the vmapped call's time divided by the number of seeds; the
-    curve's ``wall_s`` prorates it over the updates (all updates have the same shape)."""
-    out_dir = csv_path.parent
-    try:
-        t0 = time.perf_counter()
-        out = jax.device_get(jax.block_until_ready(compiled(keys, env.default_params,
-                                                            *data)))
-        wall = (time.perf_counter() - t0) / len(seeds)
-    except Exception as err:  # noqa: BLE001
-        for s in seeds:
-            append_row(csv_path, _row(t, m, s, budget, status="failed", compile_s=compile_s,
-                                      error=_error_text(err)))
-            bar.update()
-        return
-    for i, s in enumerate(seeds):
-        one = jax.tree_util.tree_map(lambda x, i=i: x[i], out)
-        try:
-            metrics = one.metrics
-            n = len(metrics.env_steps)
-            curve = [dict(task=t, method=m, seed=s, budget=budget, update=u,
-                          env_steps=int(metrics.env_steps[u]), wall_s=wall * (u + 1) / n,
-                          score=float(metrics.score[u])) for u in range(n)]
-            if runnable.train_env_steps:  # no curve for training on demonstrations only
-                learning.append_curve(learning.learning_path(out_dir, t), curve)
-            values = evaluate(one.episode, runnable)
-            ep = one.episode
-            episodes.save_episode(episodes.episode_path(out_dir, t, m, s),
-                                  episodes.learner_reset_key(s, config.n_eval), ep.actions,
-                                  ep.actions_score, env.spec.fingerprint(), rollout=0,
-                                  n_rollouts=config.n_eval, budget=budget)
-            if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(one.policy)):
-                trained.save_trained(out_dir / "policies" / t / m / f"seed{s}.msgpack", m,
-                                     env, config, one.policy, seed=int(s), budget=budget)
-            row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s, **values)
-        except Exception as err:  # noqa: BLE001
-            row = _row(t, m, s, budget, status="failed", compile_s=compile_s,
-                       error=_error_text(err))
-        append_row(csv_path, row)
-        bar.update()
+def _planner_result(env, t, m, s, budget, config, runnable, out, wall, compile_s):
+    row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s, **evaluate(out, runnable))
+    episode = dict(reset_key=episodes.planner_reset_key(s), actions=np.asarray(out.actions),
+                   score=float(out.score), fingerprint=env.spec.fingerprint(), budget=budget)
+    return SeedResult(row, episode)
+
+
+def _learner_result(env, t, m, s, budget, config, runnable, out, wall, compile_s):
+    """A learner's seed: its row, its learning curve (``wall_s`` prorated over the updates,
+    which all have the same shape), its first evaluation rollout and its trained policy
+    (``policies/<task>/<method>/seed<k>.msgpack``, unless it is not finite)."""
+    metrics = out.metrics
+    n = len(metrics.env_steps)
+    curve = None
+    if runnable.train_env_steps:  # no curve for training on demonstrations only
+        curve = [dict(task=t, method=m, seed=s, budget=budget, update=u,
+                      env_steps=int(metrics.env_steps[u]), wall_s=wall * (u + 1) / n,
+                      score=float(metrics.score[u])) for u in range(n)]
+    ep = out.episode
+    episode = dict(reset_key=episodes.learner_reset_key(s, config.n_eval),
+                   actions=np.asarray(ep.actions), score=float(ep.actions_score),
+                   fingerprint=env.spec.fingerprint(), rollout=0, n_rollouts=config.n_eval,
+                   budget=budget)
+    policy = None
+    if all(np.all(np.isfinite(x)) for x in jax.tree_util.tree_leaves(out.policy)):
+        policy = trained.trained_record(m, env, config, out.policy, seed=int(s),
+                                        budget=budget)
+    row = _row(t, m, s, budget, wall_s=wall, compile_s=compile_s, **evaluate(ep, runnable))
+    return SeedResult(row, episode, curve, policy)
 
 
 def write_reports(rows, out: Path, budget: str, make_env=None) -> Path:
@@ -577,6 +658,16 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--demos", default=None, metavar="DIR",
                      help="where the imitation methods' demonstration sets are recorded or "
                           "reused (default: $DAX_CACHE_DIR/demos, ~/.cache/dax/demos)")
+    run.add_argument("--backend", default="local", choices=BACKENDS,
+                     help="where the runs run: local (this process, the default) or ray "
+                          "(one Ray task per task x method x seed; pip install "
+                          "'dax-algos[ray]')")
+    run.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                     help="the Ray cluster to use with --backend ray, e.g. "
+                          "ray://head:10001 or auto (default: $RAY_ADDRESS, else a Ray "
+                          "instance started on this machine)")
+    run.add_argument("--ray-cpus", type=float, default=1, metavar="N",
+                     help="CPUs each Ray task reserves (default 1)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     rep = sub.add_parser("report", help="write the results page (index.html) and tables of "
                                         "an output directory again")
@@ -611,7 +702,9 @@ def main(argv=None) -> int:
             return 0
         command = shlex.join(["dax-bench", *(sys.argv[1:] if argv is None else argv)])
         rows = run_grid(args.tasks, args.methods, args.seeds, args.out, quick=args.quick,
-                        progress=not args.no_progress, demo_dir=args.demos, command=command)
+                        progress=not args.no_progress, demo_dir=args.demos, command=command,
+                        backend=args.backend, ray_address=args.ray_address,
+                        ray_cpus=args.ray_cpus)
     except (ValueError, OSError) as err:  # FileLockedError is an OSError
         msg = " ".join(str(err).split()) or type(err).__name__
         print(f"dax-bench: error: {msg}", file=sys.stderr)

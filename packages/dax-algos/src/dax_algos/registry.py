@@ -59,7 +59,7 @@ class Runnable:
     uses_gradients: bool
     nan_grads_zeroed: bool = False
     #: a learning method: ``episode`` returns :class:`dax_algos.rl.LearnOutput` (the
-    #: evaluation, the learning curve, the trained policy) and seeds run under ``vmap``
+    #: evaluation, the learning curve, the trained policy)
     learns: bool = False
     #: training environment steps of one run (the learning curve's end), for learners
     train_env_steps: int = 0

@@ -47,15 +47,22 @@ def policy_meta(method: str, env, config) -> dict:
             "dax_algos_version": __version__}
 
 
-def save_trained(path, method: str, env, config, policy: rl.Policy, **extra_meta) -> Path:
-    """Write ``policy`` (an :class:`rl.Policy` of one seed, NumPy or JAX arrays)."""
+def trained_record(method: str, env, config, policy: rl.Policy, **extra_meta) -> tuple:
+    """``(tree, meta)``: what :func:`save_trained` writes for ``policy``, as plain data
+    (NumPy arrays, JSON), so that a process without the env can write it
+    (``policy_io.save_policy(path, tree, meta)``)."""
     tree = {"policy": nets.to_tree(policy.params)}
     if policy.obs_norm is not None:
         tree["obs_norm"] = {"mean": np.asarray(policy.obs_norm.mean),
                             "var": np.asarray(policy.obs_norm.var),
                             "count": np.asarray(policy.obs_norm.count)}
-    meta = {**policy_meta(method, env, config), **extra_meta}
-    return policy_io.save_policy(path, tree, meta)
+    return tree, {**policy_meta(method, env, config), **extra_meta}
+
+
+def save_trained(path, method: str, env, config, policy: rl.Policy, **extra_meta) -> Path:
+    """Write ``policy`` (an :class:`rl.Policy` of one seed, NumPy or JAX arrays)."""
+    return policy_io.save_policy(path, *trained_record(method, env, config, policy,
+                                                       **extra_meta))
 
 
 def load_trained(path, env, method: str | None = None, config=None):

@@ -6,9 +6,10 @@ full budget); with one training seed the spread across rows says nothing, so thi
 loads each ``policies/<task>/<method>/seed<k>.msgpack`` under ``--out``, replays the same
 evaluation (the same starts, ``fold_in(PRNGKey(k), 0)``, the task's default params) and
 prints, per file, the mean ± SE over the rollouts beside the row's score. The replay runs
-under ``vmap`` over a batch of one, as the runner does over its training seeds: an
-unbatched program rounds differently, and that alone flipped a Transporter pick (its
-argmax) in one of 20 Fold-Cloth-3 rollouts (0.662 against the row's 0.643).
+unbatched, one seed, as the runner runs its seeds: a program of another batch shape
+rounds differently, and that alone flipped a Transporter pick (its argmax) in one of 20
+Fold-Cloth-3 rollouts (0.662 against the row's 0.643) when the runner still trained its
+seeds together under ``vmap``.
 
     python -m dax_algos.tools.eval_trained --out results --json > eval.jsonl
 """
@@ -44,12 +45,9 @@ def evaluate_file(path: Path, task: str, method: str, seed: int, env=None) -> di
     else:
         evaluate = rl.make_evaluate(env, act, config.n_eval, per_rollout=True)
     key = jax.random.fold_in(jax.random.PRNGKey(seed), 0)
-    # under vmap over a batch of one, as the runner evaluates (its seeds are vmapped): the
-    # same batched program, so the same round-off (an argmax policy's pick can flip on it)
-    batched = jax.vmap(evaluate, in_axes=(0, 0, None))
-    out = jax.device_get(jax.jit(batched)(jax.tree.map(lambda x: x[None], policy),
-                                          key[None], env.default_params))
-    out = jax.tree.map(lambda x: x[0], out)
+    # not under vmap, as the runner evaluates (one seed at a time): the same program shape,
+    # so the same round-off (an argmax policy's pick can flip on it)
+    out = jax.device_get(jax.jit(evaluate)(policy, key, env.default_params))
     scores = np.asarray(out.score, np.float64)
     n = scores.size
     return dict(task=task, method=method, seed=seed, n_rollouts=n,
