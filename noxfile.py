@@ -3,7 +3,8 @@
 `nox` runs the default sessions (lint, each package alone, the combinations, the
 cross-package tests, the multi-device and two-process tests); `nox -s demo` runs the main
 job, the benchmark runner on a small default; `nox -s physics-demo` the physics demo;
-`nox -s validate` the physics validation suite; `nox -l` lists them all.
+`nox -s validate` the physics validation suite; `nox -s ray` the benchmark runner's Ray
+backend; `nox -l` lists them all.
 Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
 
 Each package session installs only that package and the siblings it declares, so a
@@ -198,6 +199,17 @@ def multidevice(session: nox.Session) -> None:
     On 2 CPU cores: about 1 minute with a warm compilation cache, 2.3 minutes cold."""
     _install_local(session, LAYERS, extras={d: "test" for d in LAYERS})
     _pytest(session, "tests/multidevice", parallel=False)
+
+
+@nox.session
+def ray(session: nox.Session) -> None:
+    """`dax-bench run --backend ray` (not a default session; it installs Ray): dax-algos with
+    its `ray` extra, then the Ray backend's tests, which start a local Ray instance with 2
+    CPUs and check its rows, recordings, curves and policies against the local backend's,
+    resuming and a killed driver (packages/dax-algos/tests/test_bench_ray.py)."""
+    _install_local(session, LAYERS, extras={"dax-algos": "test,ray"})
+    _assert_importable(session, ["ray"])
+    _pytest(session, "packages/dax-algos/tests/test_bench_ray.py", parallel=False)
 
 
 @nox.session
