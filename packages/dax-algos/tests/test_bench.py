@@ -141,6 +141,9 @@ def test_backend_ray_without_ray_is_a_one_line_error_with_exit_2(tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert err.startswith("dax-bench: error: --backend ray needs Ray") and "\n" not in err
     assert "pip install 'dax-algos[ray]'" in err, err
+    assert bench.main(["run", "--tasks", TASK, "--methods", "random", "--ray-address", "auto",
+                       "--out", str(tmp_path)]) == 2  # an address, but the local backend
+    assert "--ray-address is for --backend ray" in capsys.readouterr().err
     assert not (tmp_path / "results.csv").exists()
 
 

@@ -14,7 +14,9 @@ there. Beside each row it records the episode (start key and actions,
 rewrites ``results.md`` (mean ± standard error, methods x tasks), ``chart_<task>.png``
 (score against wall time and simulated environment steps) and the results page
 ``index.html`` (:mod:`dax_algos.page`, with each (task, method)'s median episode replayed
-and drawn); ``dax-bench report --out DIR`` rewrites them.
+and drawn); ``dax-bench report --out DIR`` rewrites them. ``--backend ray`` runs every
+(task, method, seed) as a Ray task instead (:mod:`dax_algos.backends`); this process still
+writes every file.
 
 A run fails (``status=failed``, cause in ``error``) when it raises, when a state, action or
 reward turns non-finite (the task's ``finite`` flag), or when a gradient is non-finite
@@ -358,6 +360,10 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
         from . import backends
 
         backends.require_ray()
+        if not ray_cpus > 0:
+            raise ValueError(f"ray_cpus (--ray-cpus) must be positive, got {ray_cpus!r}")
+    elif ray_address:
+        raise ValueError("--ray-address is for --backend ray (the backend is local)")
     if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
         raise ValueError(f"seeds must be a positive int, got {seeds!r}")
     budget = "quick" if quick else "full"
