@@ -64,3 +64,17 @@ def cheap_cloth_overrides(name="fold_cloth1", **extra):
     spec = dax_tasks.get_spec(name)
     return dict(scene=dataclasses.replace(spec.scene, n=6, settle_substeps=200),
                 substeps=400, **extra)
+
+
+def make_nan_planner(task, config):
+    """A broken planner for the runner's tests: random actions times NaN (the task's
+    finite flag turns false, so its rows must be ``failed``)."""
+    from dax_algos import common, reference
+
+    rnd = reference.make_random(task, config)
+
+    def plan(pstate, env_state, key, params):
+        action, pstate, stats = rnd.plan(pstate, env_state, key, params)
+        return action * jnp.nan, pstate, stats
+
+    return common.Planner(init=rnd.init, plan=plan)

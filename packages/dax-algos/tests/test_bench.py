@@ -3,25 +3,13 @@
 import csv
 import sys
 
-import jax.numpy as jnp
 import pytest
-from algos_helpers import cheap_cloth_overrides
+from algos_helpers import cheap_cloth_overrides, make_nan_planner
 
-from dax_algos import bench, common, reference, registry
+from dax_algos import bench, reference, registry
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,diff_mpc"
-
-
-def _make_nan(task, config):
-    """A broken method: NaN actions (the task's finite flag turns false)."""
-    rnd = reference.make_random(task, config)
-
-    def plan(pstate, env_state, key, params):
-        action, pstate, stats = rnd.plan(pstate, env_state, key, params)
-        return action * jnp.nan, pstate, stats
-
-    return common.Planner(init=rnd.init, plan=plan)
 
 
 def _run(out, seeds=2, **kw):
@@ -36,7 +24,7 @@ def _run(out, seeds=2, **kw):
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
     registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}))
+        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}))
     out = tmp_path_factory.mktemp("bench")
     try:
         yield out, _run(out)
@@ -95,7 +83,7 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
     monkeypatch.setattr(bench, "_run_method",
                         lambda *a, **k: calls.append(a[2:4]) or original(*a, **k))
     registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}), overwrite=True)
+        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
     again = _run(out)
     assert calls == [] and len(again) == len(rows)
     assert (out / "results.csv").read_text() == before

@@ -10,29 +10,17 @@ import re
 import shutil
 import subprocess
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
-from algos_helpers import cheap_cloth_overrides
+from algos_helpers import cheap_cloth_overrides, make_nan_planner
 from PIL import Image
 
-from dax_algos import bench, common, episodes, page, reference, registry
+from dax_algos import bench, episodes, page, reference, registry
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,ppo"
 PPO = dict(total_env_steps=48, num_envs=8, unroll_length=2, minibatches=2, n_eval=2,
            policy_hidden=(16,), value_hidden=(16,))
-
-
-def _make_nan(task, config):
-    """A broken method: NaN actions (the task's finite flag turns false)."""
-    rnd = reference.make_random(task, config)
-
-    def plan(pstate, env_state, key, params):
-        action, pstate, stats = rnd.plan(pstate, env_state, key, params)
-        return action * jnp.nan, pstate, stats
-
-    return common.Planner(init=rnd.init, plan=plan)
 
 
 def _run(out, seeds=2):
@@ -47,7 +35,7 @@ def _run(out, seeds=2):
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
     registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}), overwrite=True)
+        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
     out = tmp_path_factory.mktemp("page")
     try:
         yield out, _run(out)
@@ -273,7 +261,7 @@ def test_resumed_run_adds_nothing_and_more_seeds_update_the_page(grid, monkeypat
     monkeypatch.setattr(episodes, "render_picture",
                         lambda *a, **k: drawn.append(a[3:6]) or original(*a, **k))
     registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, _make_nan, {}), overwrite=True)
+        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
     assert _run(out) == rows
     assert drawn == [] and (out / page.PAGE).read_bytes() == page_before
     assert (out / bench.RUN_FILE).read_text() == run_file
