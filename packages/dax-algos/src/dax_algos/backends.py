@@ -17,7 +17,6 @@ driver's process (``registry.register``) is unknown there and its rows fail.
 
 from __future__ import annotations
 
-import importlib
 import os
 import sys
 from collections.abc import Callable, Mapping
@@ -32,10 +31,11 @@ INSTALL_HINT = "pip install 'dax-algos[ray]'"
 def require_ray():
     """The ``ray`` module; ``ValueError`` saying how to install it if it is missing."""
     try:
-        return importlib.import_module("ray")
+        import ray
     except ImportError as err:
         raise ValueError(f"--backend ray needs Ray, which is not installed ({err}); "
                          f"install it with: {INSTALL_HINT}") from None
+    return ray
 
 
 def worker_env() -> dict:
