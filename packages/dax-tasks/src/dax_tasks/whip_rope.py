@@ -1,4 +1,4 @@
-"""Whip-Rope: whip the held end of a rope so that its far end is flung round to a target.
+"""Whip-Rope: whip the held end of a rope in a loop that flips the rope over to its other side.
 
 Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 1.6e5 Pa,
 nu = 0.3, rho = 1100 kg/m^3) of length 0.25 m and radius 1 cm lies on a table (a
@@ -50,32 +50,36 @@ its held end at ``rope_start`` (0.55, 0.5) m (the rope along +x) plus a uniform 
 up to 2 cm in x and y. Particles keep their index across seeds.
 
 Goal (fixed per task). The end state (step 50) of the *canonical throw* from the canonical
-initial state (the straight rope). The throw (``scene.throw``) is two raised-cosine
-velocity bumps of the gripper: drag back 22 cm over steps 0-23 (the rope trails straight
-behind), and, overlapping its end, a 15 cm sideways whip over steps 20-31 (peak speed
-2.5 m/s). The whip sends a bend along the rope that flings the far end round past the
-gripper: at step 50 the rope lies in a hook whose far end is 9 cm behind the gripper
-(on its -x side) and 8 cm back towards the start, while the held end has moved 22 cm
-back and 15 cm sideways. A slow
-drag does not get there in 0.5 s: the rope follows the path of a slowly dragged end, so
-the hook needs the gripper to first reach the hook's far end and then trace the 25 cm
-hook, 0.4 m or more of path at no more than 0.75 m/s (0.53 s or more), and the path's
-first part leaves the rope in the wrong place.
+initial state (the straight rope): a whip loop that flips the rope over to the other side
+of the gripper. The throw (``scene.throw``) is four raised-cosine velocity bumps of the
+gripper: 12 cm sideways (-y, steps 0-11) and, overlapping, 20 cm back along the rope
+(-x, steps 2-19), so the rope is dragged out of its start shape and slides after the
+gripper (peak speed 2.26 m/s); then 12 cm back (+y, steps 14-25) and, overlapping, the
+turn into a 28 cm return (+x, steps 18-43) that ends 8 cm past the start. The rope, still
+sliding back, swings round the turning gripper (the loop), and the return drags it out
+behind: at step 50 the held end is 8 cm from where it started and the rope lies on its
+other side, the far end 4 cm behind the gripper (-x) and 10 cm to its side, where it
+began 25 cm in front. The gripper's path is 0.64 m long; at the 0.75 m/s of a slow drag
+that is 0.86 s, well over the 0.5 s horizon; and since the held end ends only 8 cm from
+its start, moving it towards the goal's position earns little while the rope still
+points the wrong way (see CEM-MPC below).
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
-and the goal's; λ = 5 /m: ``r_gt = exp(-5 D)`` is 0.9 at D = 2.1 cm and 0.5 at
-D = 14 cm. Seeds 0-19 (``dax-bench run --tasks whip_rope --methods random,expert --seeds
-20 --quick``): random 0.180 +- 0.022, expert 0.704 +- 0.033; seeds 0-5: quick-budget
-CEM-MPC 0.718 +- 0.051. Not yet the task issue 16 asks for: the expert should reach 0.9
-and CEM-MPC stay clearly below it. The expert's whip flings the far end round on about
-half of the seeds (D 1.5-4 cm) and not on the others (D 7-14 cm); and most of D is the
-held end's 27 cm move, which a fast greedy drag also makes (CEM-MPC's one-step plans).
+and the goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at
+D = 12 cm. Seeds 0-19, ``dax-bench run --tasks whip_rope --methods random,expert,cem_mpc
+--seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.362 +- 0.028, expert
+0.925 +- 0.011, quick-budget CEM-MPC 0.474 +- 0.014 (its one-step plans drag the held
+end towards the goal's and leave the rope unflipped: D 6-14 cm).
 
 Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
 canonical throw's velocity at step t plus a feedback term that steers the gripper onto the
 canonical path (half the position error per step), so it reproduces the goal from a
-randomised start; the drag removes most of the initial bend, not all: where the tail
-still points to the whip's side the whip does not fling it round (see above).
+randomised start: the first drag pulls the random bend out of the rope, and the return
+straightens what the loop leaves. Its D over seeds 0-19: 0.4-3.7 cm (mean 1.3 cm); on
+the worst seeds (7 and 19: 3.7 and 3.5 cm) the start's bend makes the loop land a few cm
+off. (The first whip goal of 0.2.0, a sideways whip at the end of a drag, flipped the
+far end on only about half of the seeds: expert 0.70 at λ = 5, and a greedy drag to the
+goal's held end scored as well, CEM-MPC 0.72.)
 """
 
 from __future__ import annotations
@@ -132,9 +136,13 @@ class WhipRopeScene:
     offset_range: float = 0.02        # [m]
     #: canonical throw: phases (start step, steps, dx, dy, dz [m]) of the gripper, each a
     #: raised-cosine velocity bump that moves the gripper by (dx, dy, dz).
+    #: A loop: out sideways and back, then the turn and the return past the start (the
+    #: rope swings round the turning gripper and trails behind it, flipped).
     throw: tuple = (
-        (0, 24, -0.22, 0.0, 0.0),
-        (20, 12, 0.0, 0.15, 0.0),
+        (0, 12, 0.0, -0.12, 0.0),
+        (2, 18, -0.20, 0.0, 0.0),
+        (14, 12, 0.0, 0.12, 0.0),
+        (18, 26, 0.28, 0.0, 0.0),
     )
     segment: int = 8                  # substeps per checkpointed segment
     #: the grip drives the grid nodes its particles touch (``step``'s ``drive``); False is
@@ -236,7 +244,7 @@ class WhipRope(MPMEnv):
     """Whip-Rope (see the module docstring). ``params.physics`` is the scene's
     :class:`dax_physics.MaterialParams`: the rope's material and the table's friction."""
 
-    LAM = 5.0
+    LAM = 6.0
     mpm_config = staticmethod(mpm_config)
 
     def __init__(self, spec: TaskSpec):
