@@ -52,13 +52,15 @@ def _episode(task, seed, policy):
 
 def test_default_spec_and_canonical_throw_are_feasible():
     spec = wr.WHIP_ROPE
-    assert spec.horizon == 70 and spec.action_kind == "velocity" and spec.action_dim == 3
+    assert spec.horizon == 50 and spec.action_kind == "velocity" and spec.action_dim == 3
+    # a whip needs fast moves: at least 2 m/s along every axis
+    assert np.all(np.asarray(spec.action_high) >= 2.0) and spec.scene.grip_speed >= 2.0
     assert spec.distance == "l2"
     env = wr.WhipRope(spec)
     assert env.dt == pytest.approx(0.01), f"10 ms per env step, got {env.dt}"
     vel = env.throw_velocities()
     speed = np.linalg.norm(vel, axis=1)
-    assert speed.max() <= spec.scene.grip_speed, f"throw peak speed {speed.max():.3f} m/s"
+    assert 2.0 <= speed.max() <= spec.scene.grip_speed, f"throw peak speed {speed.max():.3f} m/s"
     assert np.all(vel <= np.asarray(spec.action_high)) and np.all(vel >= spec.action_low)
     path = env.canonical_path()
     lo, hi = wr.workspace(spec.scene)
@@ -124,7 +126,8 @@ def test_held_end_follows_gripper(wtask, wreset):
     # the free rope is pulled along (towards +x on average, it starts at rest)
     assert float(np.mean(x1[~held, 0] - x0[~held, 0])) > 0.0
     # speed cap (norm) and the workspace floor
-    _, s2, *_ = wtask.step(s, np.asarray([0.75, 0.75, -0.75], np.float32))
+    v = wtask.spec.scene.grip_speed
+    _, s2, *_ = wtask.step(s, np.asarray([v, v, -v], np.float32))
     d = np.asarray(wtask.end_effector(s2.physics)) - ee0
     assert float(np.linalg.norm(d[:2])) <= wtask.spec.scene.grip_speed * T + 1e-5
     assert float(d[2]) >= -1e-6, f"the gripper went below the workspace: dz = {d[2]}"
@@ -152,29 +155,72 @@ def test_expert_improves_over_zero_actions(wtask):
             f"seed {seed}: expert r_gt {r_exp:.4f} vs zero actions {r_zero:.4f}")
 
 
-def _gap_after_pull(speed, steps=10):
-    """Largest distance [m] from the free rope to the held block while the gripper pulls
-    straight away along the rope at ``speed`` [m/s] (the cap lifted to ``speed``)."""
-    scene = dataclasses.replace(wr.WHIP_ROPE.scene, grip_speed=speed)
-    task = Jitted(dax_tasks.make("whip_rope", scene=scene, action_low=(-2.0,) * 3,
-                                 action_high=(2.0,) * 3, cache_goal=False))
-    held = wr.held_mask(scene)
-    _, s = task.reset(jax.random.PRNGKey(0))
-    gap = 0.0
-    for _ in range(steps):
-        _, s, *_ = task.step(s, np.asarray([-speed, 0.0, 0.0], np.float32))
-        x = np.asarray(s.physics.x)
-        d = np.linalg.norm(x[~held][:, None, :] - x[held][None, :, :], axis=-1)
-        gap = max(gap, float(d.min()))
-    return gap
+def test_a_rope_yanked_at_2_m_per_s_stays_on_its_grip():
+    """Pins the fix of the tearing (dax-tasks 0.2.0, benchmarks/whip_tear.py): the straight
+    rope at rest, its held end pulled suddenly at 2 m/s along the rope (away from it) and
+    sideways for 8 env steps, stays joined to the grip (the nearest free particle stays
+    within 0.5 cm of the held block: 0.31 cm measured, as at rest) and stretches no more
+    than 35 % between 1-cm slices of its centre line (measured 0.25 along, 0.15
+    sideways; about 0.09 at rest, slicing noise). Before 0.2.0 (the grip only reset the
+    held particles after each substep, E = 4e4 Pa) the same pull along the rope opened a
+    15.6 cm gap."""
+    scene = wr.WHIP_ROPE.scene
+    env = dax_tasks.make("whip_rope", cache_goal=False)
+    params = env.default_params
+    held = jnp.asarray(wr.held_mask(scene))
+    rest, _ = wr.rest_particles(scene)
+    s_rest = np.asarray(rest[:, 0])
+    n_sl = int(np.ceil(s_rest.max() / 0.01))
+    sl = np.minimum((s_rest / 0.01).astype(int), n_sl - 1)
+    onehot = jnp.asarray(np.eye(n_sl)[sl].T / np.bincount(sl, minlength=n_sl)[:, None],
+                         jnp.float32)
+    rest_len = np.diff(onehot @ s_rest)
+
+    def metrics(x):
+        d = jnp.linalg.norm(x[:, None] - x[None], axis=-1)
+        gap = jnp.min(jnp.where(~held[:, None] & held[None, :], d, jnp.inf))
+        seg = jnp.linalg.norm(jnp.diff(onehot @ x, axis=0), axis=1) / rest_len
+        return jnp.stack([gap, jnp.max(seg) - 1.0])
+
+    @jax.jit
+    @jax.vmap
+    def pull(v):
+        def body(s, _):
+            s = env.apply_action(s, v, params)
+            return s, metrics(s.x)
+        s, m = jax.lax.scan(body, env._template, None, length=8)
+        return jnp.max(m, axis=0), s.finite
+
+    m, finite = pull(jnp.asarray([[-2.0, 0.0, 0.0], [0.0, 2.0, 0.0]]))
+    m = np.asarray(m)
+    assert np.all(np.asarray(finite))
+    assert np.all(m[:, 0] < 0.005), f"held-to-free gap {100 * m[:, 0]} cm (along, sideways)"
+    assert np.all(m[:, 1] < 0.35), f"largest stretch {m[:, 1]} (along, sideways)"
 
 
-def test_the_speed_cap_is_where_the_rope_starts_to_tear():
-    """Pins the failure the 0.75 m/s cap avoids: pulled along its length at the cap, the
-    rope stays joined to the held end (the free rope within about a cell); at twice the
-    cap it tears off (measured over these 10 steps: 1.4 cm at 0.75 m/s, 7.9 cm at 1.5;
-    over 15 steps 4.1 cm at 1.0 m/s)."""
-    cap = wr.WHIP_ROPE.scene.grip_speed
-    dx = wr.WHIP_ROPE.scene.dx
-    assert _gap_after_pull(cap) < 1.5 * dx
-    assert _gap_after_pull(2 * cap) > 4 * dx
+def test_expert_loop_flips_the_rope_from_random_starts():
+    """The default task (full resolution, 50 steps): from randomised starts (seeds 0-2) the
+    expert's loop lands the rope on the goal (D under 4 cm; 0.4-3.7 cm over seeds 0-19 in
+    dax-bench), where doing nothing leaves it far off (r_gt at least 0.25 below)."""
+    env = dax_tasks.make("whip_rope")
+    zero = jnp.zeros(3, jnp.float32)
+
+    @jax.jit
+    @jax.vmap
+    def episode(key, use_expert):
+        _, s = env.reset(key)
+
+        def body(s, _):
+            a = jnp.where(use_expert, env.expert_action(s), zero)
+            _, s, r, _, info = env.step(s, a)
+            return s, (r, info["distance"], info["finite"])
+
+        _, (r, d, finite) = jax.lax.scan(body, s, None, length=env.horizon)
+        return r[-1], d[-1], jnp.all(finite)
+
+    keys = jnp.stack([jax.random.PRNGKey(i) for i in range(3)] * 2)
+    use = jnp.asarray([True] * 3 + [False] * 3)
+    r, d, finite = map(np.asarray, episode(keys, use))
+    assert np.all(finite)
+    assert np.all(d[:3] < 0.04), f"expert D {100 * d[:3]} cm"
+    assert np.all(r[:3] > r[3:] + 0.25), f"expert r_gt {r[:3]} vs zero actions {r[3:]}"

@@ -595,9 +595,34 @@ def _return_map(params: MaterialParams, mat, B):
 
 # ----------------------------------------------------------------------------- substep
 
-def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
+#: Driven-mass fraction above which a grid node moves with the driven particles
+#: (:func:`step`'s ``drive``).
+DRIVE_FRACTION = 1e-3
+
+
+def _drive_grid(gv, driven_mass, gm, velocity):
+    """Grid velocities ``gv`` (M, 3) with every node that carries more than
+    :data:`DRIVE_FRACTION` driven mass set to ``velocity`` (3,): the infinite-mass limit of
+    a rigid grip. Without it the driven (held) particles were only reset after the
+    substep, while the stress of the rope they pull slowed the nodes they share with it:
+    the velocity field moved slower than the grip, so the gap opening between the grip
+    and the free particles never entered any particle's F, and no force closed it (a
+    rope pulled at 1 m/s came off its held end)."""
+    f = driven_mass > DRIVE_FRACTION * jnp.where(gm > 0.0, gm, 1.0)
+    return jnp.where(f[:, None], velocity, gv)
+
+
+def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) -> MPMState:
     """Advance the scene by one substep of ``cfg.dt`` seconds (pure; jit with ``cfg``
-    static). The colliders' friction is ``params.friction`` when set."""
+    static). The colliders' friction is ``params.friction`` when set.
+
+    drive: ``None`` or ``(weight, velocity)``: particles moved kinematically at the
+        velocity ``velocity`` (3,) [m/s] (a held part of the object; ``weight`` (N,) is 1
+        for them, 0 for the free ones). The grid carries the constraint: the nodes that
+        carry driven mass move at ``velocity`` (:func:`_drive_grid`), so the velocity
+        field that the free particles and every particle's F see moves with the driven
+        part. The caller still sets the driven particles' positions after the substep.
+        Costs a fifth scatter channel; ``None`` leaves the substep as it was."""
     dt, dx = cfg.dt, cfg.dx
     inv_dx = 1.0 / dx
     dtype = state.x.dtype
@@ -635,19 +660,23 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
     # 27-fold scatter input and recomputes it for every stencil node (measured 30-60x slower
     # for the fixed-corotated model). The per-node values w_o (b + dx A o, m) stay fused.
     rows = b + [A[c][a] for a in range(3) for c in range(3)] + [m]
-    rows = list(jnp.eye(13, dtype=dtype) @ jnp.stack(rows))
+    if drive is not None:
+        rows = rows + [m * jnp.asarray(drive[0], dtype)]  # a 5th grid channel
+    nr = len(rows)
+    rows = list(jnp.eye(nr, dtype=dtype) @ jnp.stack(rows))
     vals = []
     for oi, oj, ok in _OFFSETS:
         mom = [rows[c] + dx * (oi * rows[3 + c] + oj * rows[6 + c] + ok * rows[9 + c])
                for c in range(3)]
         wt = w[oi][:, 0] * w[oj][:, 1] * w[ok][:, 2]
-        vals.append(wt[:, None] * jnp.stack(mom + [rows[12]], axis=-1))
-    vals = jnp.stack(vals, axis=1).reshape(n, 3, 3, 3, 4)
+        vals.append(wt[:, None] * jnp.stack(mom + rows[12:], axis=-1))
+    nc = nr - 9
+    vals = jnp.stack(vals, axis=1).reshape(n, 3, 3, 3, nc)
     # One windowed scatter-add of each particle's 3x3x3x4 block (about 2x faster on CPU than
     # 27 N point scatters).
     grid = jax.lax.scatter_add(
-        jnp.zeros((Wx, Wy, Wz, 4), dtype), base, vals, _BLOCK_SCATTER,
-        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(-1, 4)
+        jnp.zeros((Wx, Wy, Wz, nc), dtype), base, vals, _BLOCK_SCATTER,
+        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(-1, nc)
 
     # grid update
     gm = grid[:, 3]
@@ -663,6 +692,8 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState) -> MPMState:
     gv = jnp.where(heavy[:, None], gv_heavy,
                    jnp.where(has_mass[:, None], jax.lax.stop_gradient(gv_exact), 0.0))
     gv = gv + dt * jnp.asarray(cfg.gravity, dtype)
+    if drive is not None:
+        gv = _drive_grid(gv, grid[:, 4], gm, jnp.asarray(drive[1], dtype))
     node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
     if cfg.walls != "none":
         # nodes on or beyond the wall surfaces (see the module docstring)

@@ -1,60 +1,85 @@
-"""Whip-Rope: move the held end of a rope so that it lands in a target configuration.
+"""Whip-Rope: whip the held end of a rope in a loop that flips the rope over to its other side.
 
-Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 4e4 Pa,
+Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 1.6e5 Pa,
 nu = 0.3, rho = 1100 kg/m^3) of length 0.25 m and radius 1 cm lies on a table (a
 ``plane`` collider at ``table_z`` = 4.5 cm, Coulomb friction 0.4). The material and the
-friction are ``params.physics`` (a :class:`dax_physics.MaterialParams`). The gripper holds the first
-``grip_length`` = 3 cm of the rope (31 of the 288 particles, the same indices for every
-seed): after every substep those particles are set rigidly on the gripper's path, with
-its velocity and a zero APIC matrix (the grasp of :func:`dax_physics.grasp`, imposed in
-the step body so that no gripper collider is evaluated on the grid). The gripper's
+friction are ``params.physics`` (a :class:`dax_physics.MaterialParams`). The gripper holds
+the first ``grip_length`` = 3 cm of the rope (31 of the 288 particles, the same indices
+for every seed). The grip is rigid and infinitely heavy: in every substep the grid nodes
+that carry held mass move at the gripper's velocity (``dax_physics.step``'s ``drive``),
+and after the substep the held particles are set on the gripper's path with its velocity
+and a zero APIC matrix (no gripper collider is evaluated on the grid). The gripper's
 position is the centroid of the held particles (the end-effector).
 
-Resolution (what the scene needs, no more). Cells ``dx`` = 1.25 cm; 8 particles per cell
-(288 particles, about 4 across the rope); the allocated grid is a 30 x 30 x 12 cell window
-(0.375 x 0.375 x 0.15 m) that follows the rope inside an 80 x 80 x 24 cell domain
-(1 x 1 x 0.3 m). Substep ``dt`` = 0.625 ms (CFL bound 0.66 ms for the P-wave speed
-7.0 m/s plus ``max_speed`` 2.5 m/s); 16 substeps per env step (10 ms), horizon 70 steps
-(0.7 s). E is the softest that keeps the rope from stretching much under table friction
-(about 3 %) and at the gripper speeds; a softer rope allows a longer ``dt`` but stretches
-and tears at the grip.
+Why the rope no longer tears (dax-tasks 0.2.0; ``benchmarks/whip_tear.py``). Before, the
+held particles were only reset after each substep. The stress of the rope they pulled
+slowed the grid nodes they share with it, so the velocity field moved slower than the
+grip: the gap opening between the grip and the free rope entered no particle's F, and
+no force closed it. Pulled suddenly along the rope the free rope was left behind (largest
+held-to-free gap over 12 steps: 0.9 cm at 0.5 m/s, 2.8 at 1, 15.6 at 2, 31 at 3;
+sideways 4.4 cm at 2 m/s), while the free rope itself stretched little: the fault was the
+grip, not the resolution. Driving the grid nodes fixes the junction (gap 0.31 cm, as at
+rest, at every speed); the old rope (E = 4e4 Pa) then survives 2 m/s but stretches 80 %
+locally and tears inside at 3 m/s (a P-wave speed of 7 m/s is too slow for a whip);
+E = 1.6e5 Pa (14 m/s) stretches at most 25 % at 2 m/s and 43 % at 3 m/s (largest
+stretch between 1-cm slices of the centre line; 9 % at rest is slicing noise) and stays
+whole. A stiffer old grip alone does not do it: with E = 4e5 Pa the gap was still 1.1 cm
+at 2 m/s and 2.7 cm at 3 m/s.
+
+Resolution. Cells ``dx`` = 1.25 cm; 8 particles per cell (288 particles, about 4 across
+the rope); the allocated grid is a 30 x 30 x 12 cell window (0.375 x 0.375 x 0.15 m) that
+follows the rope inside an 80 x 80 x 24 cell domain (1 x 1 x 0.3 m). Substep ``dt`` =
+10/29 ms (CFL bound 0.347 ms for the P-wave speed 14 m/s plus ``max_speed`` 4 m/s); 29
+substeps per env step (10 ms), horizon 50 steps (0.5 s).
 
 Measured (2-core CPU, batch 1, ``python -m dax_tasks.bench --tasks whip_rope --batch
-1``): 0.011 s per env step forward, 0.034 s with the action gradient (DaXBench
-Whip-Rope: 0.125 s per step).
+1``): 0.022 s per env step forward, 0.17 s with the action gradient (0.011 s and 0.034 s
+before 0.2.0: 16 substeps, no drive channel; DaXBench Whip-Rope: 0.125 s per step).
 
-Action (``velocity``): the gripper's velocity ``(vx, vy, vz)`` [m/s], held for the env step.
-Bounds +-0.75 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 0.75 m/s:
-a sudden pull along the rope at 1 m/s or more tears the held end off this rope (numerical
-fracture at this resolution; measured: the gap between the held and the free particles
-grows past 5 cm). The gripper's end point is kept inside the workspace (:func:`workspace`; z at
-least the held particles' rest height, so the held end never enters the table);
-a clipped component has zero gradient.
+Action (``velocity``): the gripper's velocity ``(vx, vy, vz)`` [m/s], held for the env
+step. Bounds +-3 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 3 m/s.
+The gripper's end point is kept inside the workspace (:func:`workspace`; z at least the
+held particles' rest height, so the held end never enters the table); a clipped
+component has zero gradient.
 
 Initial state. The rope's particles are sampled once on a straight reference rope and
 bent onto a random centre line by arc length s (from the held end),
 ``theta(s) = theta0 + sum_k a_k (sin(k pi s / L + phi_k) - sin(phi_k))`` (k = 1..3,
 ``a_k`` uniform in ``[-A/k, A/k]``, A = 0.4 rad, heading ``theta0`` uniform in +-0.3 rad),
-its held end at the canonical one (rope centred on the table along +x) plus a uniform
-offset of up to 2 cm in x and y. Particles keep their index across seeds.
+its held end at ``rope_start`` (0.55, 0.5) m (the rope along +x) plus a uniform offset of
+up to 2 cm in x and y. Particles keep their index across seeds.
 
-Goal (fixed per task). The end state (step 70) of the *canonical throw* from the canonical
-initial state (the straight rope). The throw (``scene.throw``) is three smooth gripper
-moves, each a raised-cosine velocity bump: drag back 10 cm (and up 2 cm) over steps 0-29
-(straightening the rope behind the gripper), whip sideways (2, 7, 0) cm over steps 30-51,
-lay the end down (2, -2, -2) cm over steps 52-61; then the rope settles. Peak speed
-0.69 m/s.
+Goal (fixed per task). The end state (step 50) of the *canonical throw* from the canonical
+initial state (the straight rope): a whip loop that flips the rope over to the other side
+of the gripper. The throw (``scene.throw``) is four raised-cosine velocity bumps of the
+gripper: 12 cm sideways (-y, steps 0-11) and, overlapping, 20 cm back along the rope
+(-x, steps 2-19), so the rope is dragged out of its start shape and slides after the
+gripper (peak speed 2.26 m/s); then 12 cm back (+y, steps 14-25) and, overlapping, the
+turn into a 28 cm return (+x, steps 18-43) that ends 8 cm past the start. The rope, still
+sliding back, swings round the turning gripper (the loop), and the return drags it out
+behind: at step 50 the held end is 8 cm from where it started and the rope lies on its
+other side, the far end 4 cm behind the gripper (-x) and 10 cm to its side, where it
+began 25 cm in front. The gripper's path is 0.64 m long; at the 0.75 m/s of a slow drag
+that is 0.86 s, well over the 0.5 s horizon; and since the held end ends only 8 cm from
+its start, moving it towards the goal's position earns little while the rope still
+points the wrong way (see CEM-MPC below).
 
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
-and the goal's; λ = 7 /m: ``r_gt = exp(-7 D)`` is 0.85 at D = 2.3 cm and 0.5 at
-D = 10 cm. Seeds 0-3: the scripted expert ends at r_gt 0.79-0.92 (dax-physics 0.3; 0.85-0.93
-with 0.2), doing nothing at 0.56-0.64 (D 6.4-8.4 cm); seeds 0-19: expert 0.836 +- 0.018,
-random 0.654 +- 0.025.
+and the goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at
+D = 12 cm. Seeds 0-19, ``dax-bench run --tasks whip_rope --methods random,expert,cem_mpc
+--seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.362 +- 0.028, expert
+0.925 +- 0.011, quick-budget CEM-MPC 0.474 +- 0.014 (its one-step plans drag the held
+end towards the goal's and leave the rope unflipped: D 6-14 cm).
 
 Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
 canonical throw's velocity at step t plus a feedback term that steers the gripper onto the
 canonical path (half the position error per step), so it reproduces the goal from a
-randomised start; the drag phase removes most of the initial bend.
+randomised start: the first drag pulls the random bend out of the rope, and the return
+straightens what the loop leaves. Its D over seeds 0-19: 0.4-3.7 cm (mean 1.3 cm); on
+the worst seeds (7 and 19: 3.7 and 3.5 cm) the start's bend makes the loop land a few cm
+off. (The first whip goal of 0.2.0, a sideways whip at the end of a drag, flipped the
+far end on only about half of the seeds: expert 0.70 at λ = 5, and a greedy drag to the
+goal's held end scored as well, CEM-MPC 0.72.)
 """
 
 from __future__ import annotations
@@ -82,7 +107,7 @@ from .env import MPMEnv
 from .spec import TaskSpec
 
 #: The rope's default material (``params.physics`` material 0).
-ROPE = Material("elastic", 1100.0, youngs_modulus=4.0e4, poisson_ratio=0.3)
+ROPE = Material("elastic", 1100.0, youngs_modulus=1.6e5, poisson_ratio=0.3)
 #: Default Coulomb coefficient of the table (``params.physics.friction[0]``).
 TABLE_FRICTION = 0.4
 
@@ -92,7 +117,7 @@ class WhipRopeScene:
     """Static scene of Whip-Rope (SI units); see the module docstring."""
 
     dx: float = 0.0125                # grid cell [m]
-    dt: float = 6.25e-4               # substep [s]
+    dt: float = 0.01 / 29             # substep [s] (29 per 10 ms env step)
     domain: tuple = (80, 80, 24)      # cells (1.0 x 1.0 x 0.3 m)
     window: tuple = (30, 30, 12)      # active-region cells
     table_z: float = 0.045            # table height [m]
@@ -100,22 +125,30 @@ class WhipRopeScene:
     rope_radius: float = 0.01         # [m]
     ppc: int = 8                      # particles per cell
     grip_length: float = 0.03         # held length of rope at the s = 0 end [m]
-    max_speed: float = 2.5            # largest expected particle speed [m/s] (CFL guard)
-    grip_speed: float = 0.75          # largest gripper speed (norm) [m/s]
+    max_speed: float = 4.0            # largest expected particle speed [m/s] (CFL guard)
+    grip_speed: float = 3.0           # largest gripper speed (norm) [m/s]
     grip_low: tuple = (0.15, 0.15)    # gripper workspace (x, y) [m]; z >= rest height
     grip_high: tuple = (0.85, 0.85, 0.13)
+    rope_start: tuple = (0.55, 0.5)   # canonical (x, y) of the held end [m]
     bend_amplitude: float = 0.4       # A [rad]
     bend_modes: int = 3
     heading_range: float = 0.3        # [rad]
     offset_range: float = 0.02        # [m]
     #: canonical throw: phases (start step, steps, dx, dy, dz [m]) of the gripper, each a
     #: raised-cosine velocity bump that moves the gripper by (dx, dy, dz).
+    #: A loop: out sideways and back, then the turn and the return past the start (the
+    #: rope swings round the turning gripper and trails behind it, flipped).
     throw: tuple = (
-        (0, 30, -0.10, 0.0, 0.02),
-        (30, 22, 0.02, 0.07, 0.0),
-        (52, 10, 0.02, -0.02, -0.02),
+        (0, 12, 0.0, -0.12, 0.0),
+        (2, 18, -0.20, 0.0, 0.0),
+        (14, 12, 0.0, 0.12, 0.0),
+        (18, 26, 0.28, 0.0, 0.0),
     )
     segment: int = 8                  # substeps per checkpointed segment
+    #: the grip drives the grid nodes its particles touch (``step``'s ``drive``); False is
+    #: the grip before dax-tasks 0.2.0 (held particles only reset after each substep),
+    #: kept to measure the tearing it caused (benchmarks/whip_tear.py)
+    grid_grip: bool = True
 
     @property
     def centre(self) -> tuple:
@@ -169,8 +202,7 @@ def _place(scene, rest, theta_fn, start):
 
 def _rope_start(scene: WhipRopeScene) -> np.ndarray:
     """Canonical position (x, y) of the rope's s = 0 end: the rope centred on the table."""
-    cx, cy = scene.centre
-    return np.asarray([cx - 0.5 * scene.rope_length, cy], np.float32)
+    return np.asarray(scene.rope_start, np.float32)
 
 
 def straight(scene: WhipRopeScene, rest) -> np.ndarray:
@@ -212,7 +244,7 @@ class WhipRope(MPMEnv):
     """Whip-Rope (see the module docstring). ``params.physics`` is the scene's
     :class:`dax_physics.MaterialParams`: the rope's material and the table's friction."""
 
-    LAM = 7.0
+    LAM = 6.0
     mpm_config = staticmethod(mpm_config)
 
     def __init__(self, spec: TaskSpec):
@@ -272,8 +304,10 @@ class WhipRope(MPMEnv):
         material = params.physics
         h3 = held[:, None]
 
+        drive = (held.astype(x0.dtype), vel) if scene.grid_grip else None
+
         def body(s, i):
-            s = step(cfg, material, s)
+            s = step(cfg, material, s, drive=drive)
             moved = x0 + vel * ((i + 1).astype(x0.dtype) * cfg.dt)
             return s.replace(x=jnp.where(h3, moved, s.x),
                              v=jnp.where(h3, jnp.broadcast_to(vel, s.v.shape), s.v),
@@ -342,8 +376,8 @@ def _spec() -> TaskSpec:
     scene = WhipRopeScene()
     vmax = scene.grip_speed
     return TaskSpec(
-        name="whip_rope", horizon=70, action_kind="velocity", action_low=(-vmax,) * 3,
-        action_high=(vmax,) * 3, substeps=16, distance="l2", contact_adjustment=False,
+        name="whip_rope", horizon=50, action_kind="velocity", action_low=(-vmax,) * 3,
+        action_high=(vmax,) * 3, substeps=29, distance="l2", contact_adjustment=False,
         obs_stride=2, scene=scene)
 
 
