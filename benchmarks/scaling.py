@@ -4,8 +4,9 @@ The workload is the literature's headline one: ``--rollouts`` (128) rollouts of
 ``--steps`` (80) env steps with uniform random actions, and the gradient of the summed
 reward wrt every action (:func:`dax_tasks.distributed.rollout_gradient_fn`: one jitted
 program, the batch split over the devices by :mod:`dax_tasks.sharding`). The task is
-Whip-Rope at its default resolution (an MPM rope, 288 particles, 16 substeps per env step,
-velocity actions, horizon 70): its per-step action gradient is the quantity the
+Whip-Rope at its default resolution (an MPM rope of 288 particles, velocity actions; the
+JSON files of 2026-11-24 were measured on the Whip-Rope before dax-tasks 0.2.0, 16 substeps
+per env step, today's has 29): its per-step action gradient is the quantity the
 literature times, and its step is cheap enough for long rollouts (a cloth task needs 700
 substeps per pick-and-place step and has a horizon of 3 to 10). Steps past the horizon are
 simulated like the others.
