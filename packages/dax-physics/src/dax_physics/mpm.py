@@ -596,7 +596,7 @@ def _return_map(params: MaterialParams, mat, B):
 # ----------------------------------------------------------------------------- substep
 
 #: Driven-mass fraction above which a grid node moves with the driven particles
-#: (:func:`step`'s ``drive``).
+#: (:func:`step`'s ``drive``); below it the drive fades out smoothly to zero driven mass.
 DRIVE_FRACTION = 1e-3
 
 
@@ -608,8 +608,13 @@ def _drive_grid(gv, driven_mass, gm, velocity):
     the velocity field moved slower than the grip, so the gap opening between the grip
     and the free particles never entered any particle's F, and no force closed it (a
     rope pulled at 1 m/s came off its held end)."""
-    f = driven_mass > DRIVE_FRACTION * jnp.where(gm > 0.0, gm, 1.0)
-    return jnp.where(f[:, None], velocity, gv)
+    # Below DRIVE_FRACTION the node blends in the drive with a C1 ramp (smoothstep) of
+    # the driven fraction: a hard switch made the velocity of a node jump as its driven
+    # fraction crossed the threshold, a jump of the whole rollout in the action (Whip-Rope
+    # reward: +4.9e-6 within 2e-4 m/s of the action; autodiff cannot see it).
+    t = jnp.clip(driven_mass / (DRIVE_FRACTION * jnp.where(gm > 0.0, gm, 1.0)), 0.0, 1.0)
+    alpha = (t * t * (3.0 - 2.0 * t))[:, None]
+    return gv + alpha * (velocity - gv)
 
 
 def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) -> MPMState:
