@@ -67,8 +67,8 @@ points the wrong way (see CEM-MPC below).
 Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
 and the goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at
 D = 12 cm. Seeds 0-19, ``dax-bench run --tasks whip_rope --methods random,expert,cem_mpc
---seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.362 +- 0.028, expert
-0.925 +- 0.011, quick-budget CEM-MPC 0.474 +- 0.014 (its one-step plans drag the held
+--seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.363 +- 0.024, expert
+0.934 +- 0.013, quick-budget CEM-MPC 0.456 +- 0.013 (its one-step plans drag the held
 end towards the goal's and leave the rope unflipped: D 6-14 cm).
 
 Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
