@@ -138,8 +138,9 @@ def check_gradient_task_whip_rope(level="default"):
     dz in its first phases), so the expert's first vz is 0 (6e-8, float32 noise of the
     feedback term) with the held end lying on the table at the workspace's z floor.
     a_z = 0 is a kink of the reward: below it the z clip holds the gripper on the floor
-    (vz = 0, zero gradient in z), above it the held end lifts off the table. A direction with a z part makes the central differences straddle the kink at
-    every h >= 1e-7 and average the two one-sided slopes (measured, seed 0: AD 0.0100057
+    (vz = 0, zero gradient in z), above it the held end lifts off the table. A direction
+    with a z part makes the central differences straddle the kink at every h >= 1e-7
+    and average the two one-sided slopes (measured, seed 0: AD 0.0100057
     = the forward difference to 1e-6 relative; backward 0.0094494; central 0.0097275,
     +2.9 %); at a_z = +-0.05 the full direction agrees to 1e-5 relative. (Before 0.2.0
     the throw began with a 2 cm lift, vz > 0, off the kink.) Along (vx, vy) this row also
