@@ -600,7 +600,7 @@ def _return_map(params: MaterialParams, mat, B):
 DRIVE_FRACTION = 1e-3
 
 
-def _drive_grid(gv, driven_mass, gm, velocity):
+def _drive_grid(gv, driven_mass, gm, velocity, heavy):
     """Grid velocities ``gv`` (M, 3) with every node that carries more than
     :data:`DRIVE_FRACTION` driven mass set to ``velocity`` (3,): the infinite-mass limit of
     a rigid grip. Without it the driven (held) particles were only reset after the
@@ -612,7 +612,14 @@ def _drive_grid(gv, driven_mass, gm, velocity):
     # the driven fraction: a hard switch made the velocity of a node jump as its driven
     # fraction crossed the threshold, a jump of the whole rollout in the action (Whip-Rope
     # reward: +4.9e-6 within 2e-4 m/s of the action; autodiff cannot see it).
-    t = jnp.clip(driven_mass / (DRIVE_FRACTION * jnp.where(gm > 0.0, gm, 1.0)), 0.0, 1.0)
+    # The fraction's reverse-mode derivative (-d / m^2) overflows float32 on the nearly
+    # empty nodes, as in step's grid velocity: there (``heavy`` false) the fraction keeps
+    # its forward value and passes no gradient (a Young's-modulus gradient through
+    # Whip-Rope was NaN without this).
+    frac_heavy = driven_mass / (DRIVE_FRACTION * jnp.where(heavy, gm, 1.0))
+    frac_light = jax.lax.stop_gradient(
+        driven_mass / (DRIVE_FRACTION * jnp.where(gm > 0.0, gm, 1.0)))
+    t = jnp.clip(jnp.where(heavy, frac_heavy, frac_light), 0.0, 1.0)
     alpha = (t * t * (3.0 - 2.0 * t))[:, None]
     return gv + alpha * (velocity - gv)
 
@@ -698,7 +705,7 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
                    jnp.where(has_mass[:, None], jax.lax.stop_gradient(gv_exact), 0.0))
     gv = gv + dt * jnp.asarray(cfg.gravity, dtype)
     if drive is not None:
-        gv = _drive_grid(gv, grid[:, 4], gm, jnp.asarray(drive[1], dtype))
+        gv = _drive_grid(gv, grid[:, 4], gm, jnp.asarray(drive[1], dtype), heavy)
     node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
     if cfg.walls != "none":
         # nodes on or beyond the wall surfaces (see the module docstring)
