@@ -15,9 +15,10 @@ median-score seed (:func:`median_row`) is replayed from its actions with the env
 ``reset`` / ``step`` (one jitted ``lax.scan`` per task), which gives its states, and drawn
 with :func:`dax_tasks.render.scene_frames`: a looping GIF and a filmstrip of key frames
 beside the goal. The replayed final r_gt is compared with the recorded one; a difference
-over :data:`MISMATCH` is flagged on the page (an unbatched program can round differently
-from the runner's vmapped one, so a mismatching replay is tried once more under ``vmap``
-over a batch of one, as the runner trains its seeds). Pictures are named by the seed and a
+over :data:`MISMATCH` is flagged on the page. (The replay's program is not the runner's:
+a learner's recorded rollout ran inside its vmapped evaluation, and another program
+shape can round differently; a mismatching replay is tried once more under ``vmap`` over
+a batch of one, which the page then names.) Pictures are named by the seed and a
 hash of everything they depend on (the task's fingerprint, the start key, the actions,
 the drawing settings), so drawing them again is skipped: a sidecar JSON file records what
 the replay gave and how long it took.
@@ -244,8 +245,6 @@ def render_picture(out: Path, env, episode: Episode, task: str, method: str, see
     GIF, the filmstrip PNG, then the sidecar JSON, each atomically); returns the sidecar's
     contents. ``replays`` caches the jitted replays per (task, batched) and the view per
     (task, "view")."""
-    from PIL import Image
-
     from dax_tasks import render
 
     params = env.default_params if params is None else params
@@ -267,9 +266,7 @@ def render_picture(out: Path, env, episode: Episode, task: str, method: str, see
         replays[(task, "view")] = render.SceneView.for_env(env, params)
     frames, strip = draw(env, states, replays[(task, "view")])
     render.save_animation(frames, base.with_suffix(".gif"), fps=FPS)
-    # not render.save_png: its optimize=True costs ~0.4 s a strip for ~10 % smaller files
-    atomic_write(base.with_suffix(".png"), lambda f: Image.fromarray(strip).save(
-        f, format="PNG", compress_level=6))
+    render.save_png(strip, base.with_suffix(".png"), optimize=False)
     meta = dict(seed=int(seed), key=key, replayed=score, recorded=episode.score,
                 replay_mode=mode, frames=int(len(frames)),
                 render_s=round(time.perf_counter() - t0, 3),

@@ -340,8 +340,10 @@ def filmstrip(frames, k: int = 5, goal_frame=None,  # noqa: F811 (the picture, n
     return np.concatenate(parts, axis=1)
 
 
-def save_png(image, path) -> Path:
-    """Write ``image`` ((H, W, 3) uint8) to ``path`` as a PNG, atomically."""
+def save_png(image, path, optimize: bool = True) -> Path:
+    """Write ``image`` ((H, W, 3) uint8) to ``path`` as a PNG, atomically. ``optimize``:
+    Pillow's smallest encoding (about 10 % smaller files; ~0.4 s for a 320 x 240
+    six-frame filmstrip, so the results page's pictures turn it off)."""
     from PIL import Image
 
     path = Path(path)
@@ -349,7 +351,7 @@ def save_png(image, path) -> Path:
         raise ValueError(f"save_png writes PNG files; got {path.name!r} (use a .png name)")
     img = _check_frames([image], "save_png")[0]
     return atomic_write(path, lambda f: Image.fromarray(img).save(f, format="PNG",
-                                                                    optimize=True))
+                                                                    optimize=optimize))
 
 
 def record_episode(env, policy=None, key=None, res: int = 128, params=None):
