@@ -78,3 +78,13 @@ def make_nan_planner(task, config):
         return action * jnp.nan, pstate, stats
 
     return common.Planner(init=rnd.init, plan=plan)
+
+
+def register_nan_planner(overwrite: bool = False) -> None:
+    """Register :func:`make_nan_planner` as the method ``nan_actions`` (unregister it with
+    ``registry.unregister("nan_actions")``)."""
+    from dax_algos import reference, registry
+
+    registry.register(registry.planner_method(
+        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}),
+        overwrite=overwrite)

@@ -4,9 +4,9 @@ import csv
 import sys
 
 import pytest
-from algos_helpers import cheap_cloth_overrides, make_nan_planner
+from algos_helpers import cheap_cloth_overrides, register_nan_planner
 
-from dax_algos import bench, reference, registry
+from dax_algos import bench, registry
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,diff_mpc"
@@ -23,8 +23,7 @@ def _run(out, seeds=2, **kw):
 
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
-    registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}))
+    register_nan_planner()
     out = tmp_path_factory.mktemp("bench")
     try:
         yield out, _run(out)
@@ -82,8 +81,7 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
     original = bench._run_method
     monkeypatch.setattr(bench, "_run_method",
                         lambda *a, **k: calls.append(a[2:4]) or original(*a, **k))
-    registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
+    register_nan_planner(overwrite=True)
     again = _run(out)
     assert calls == [] and len(again) == len(rows)
     assert (out / "results.csv").read_text() == before

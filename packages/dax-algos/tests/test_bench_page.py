@@ -12,10 +12,10 @@ import subprocess
 
 import numpy as np
 import pytest
-from algos_helpers import cheap_cloth_overrides, make_nan_planner
+from algos_helpers import cheap_cloth_overrides, register_nan_planner
 from PIL import Image
 
-from dax_algos import bench, episodes, page, reference, registry
+from dax_algos import bench, episodes, page, registry
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,ppo"
@@ -34,8 +34,7 @@ def _run(out, seeds=2):
 
 @pytest.fixture(scope="module")
 def grid(tmp_path_factory):
-    registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
+    register_nan_planner(overwrite=True)
     out = tmp_path_factory.mktemp("page")
     try:
         yield out, _run(out)
@@ -260,8 +259,7 @@ def test_resumed_run_adds_nothing_and_more_seeds_update_the_page(grid, monkeypat
     original = episodes.render_picture
     monkeypatch.setattr(episodes, "render_picture",
                         lambda *a, **k: drawn.append(a[3:6]) or original(*a, **k))
-    registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}), overwrite=True)
+    register_nan_planner(overwrite=True)
     assert _run(out) == rows
     assert drawn == [] and (out / page.PAGE).read_bytes() == page_before
     assert (out / bench.RUN_FILE).read_text() == run_file
