@@ -56,6 +56,16 @@ def view_window(points, extra=(), pad: float = 0.25, margin: float = 0.02):
             float(centre[1] + half), float(pts[:, 2].min()))
 
 
+def table_region(env) -> np.ndarray:
+    """The corners (4, 3) [m] of the table region where the env's object may start (a
+    cloth task's ``scene.table_half``; the cloth lies anywhere in it), or no points (0, 3),
+    so that every start is in view."""
+    half = getattr(getattr(env.unwrapped.spec, "scene", None), "table_half", None)
+    if half is None:
+        return np.zeros((0, 3))
+    return np.asarray([[sx * half, sy * half, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+
+
 def _pixels(points, window, res: int):
     x0, x1, y0, y1, _ = window
     u = (points[:, 0] - x0) / (x1 - x0) * res
@@ -193,7 +203,8 @@ class Camera:
             _, state = jax.jit(env.reset)(key, params)
             pts = np.asarray(env.object_points(state.physics))
             ee = np.asarray(env.end_effector(state.physics))
-        return Camera(view_window(pts, extra=(np.asarray(params.goal), ee)),
+        return Camera(view_window(pts, extra=(np.asarray(params.goal), ee,
+                                              table_region(env))),
                       0.75 * point_spacing(pts))
 
     def height(self, points, res: int = 64):
