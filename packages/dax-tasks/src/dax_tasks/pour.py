@@ -60,9 +60,11 @@ bottom to the rim, grown by ``dx/2`` for particles resting against the walls), 0
 For the soup the chunks' particles count like water's (the ingredients must go too).
 λ = 20 /m: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
 about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
-scripted expert ends a Pour-Water episode at 0.876 +- 0.005 (seeds 0-19, dax-physics 0.3;
-the rest splashed onto the table) and a Pour-Soup episode at 0.918 +- 0.002, random actions
-at 0.335 and 0.200 (``dax-data score --task T --seeds 20``). With dax-physics 0.2 they were
+scripted expert ends a Pour-Water episode at 0.877 +- 0.004 (seeds 0-19, dax-physics 0.3;
+the rest splashed onto the table) and a Pour-Soup episode at 0.934 +- 0.002, random actions
+at 0.342 +- 0.011 and 0.214 +- 0.017 (``dax-bench run --tasks pour_water,pour_soup
+--methods random,expert --seeds 20 --quick``; with the target bowl fixed: 0.871, 0.914,
+0.341, 0.208). With dax-physics 0.2 they were
 0.950, 1.0, 0.15 and 0.13: its water held together by tension (negative pressure), splashed
 less and rested a cell below the table (so spilled water counted 1.1 cm further from the
 cavity); water without tension splashes more.
