@@ -219,7 +219,8 @@ def grasp_set(scene: ClothScene, x, pick, contact_adjustment: bool):
     r = scene.grasp_radius * scene.mesh_spacing
     # Only the layer under the fingers: the vertices near the centre in space *and* on the
     # cloth (rest positions) of the vertex nearest to it. Without that, a pick on a folded
-    # cloth would also lift the layer below (there is no self-collision to separate them).
+    # cloth would also lift a layer below wherever it lies within the grasp radius (with
+    # self-collision off the layers lie in one plane; with it, where a stack is squeezed).
     rest = jnp.asarray(_cloth_np(scene)[0], x.dtype)
     k = jnp.argmin(jnp.sum((xs - centre) ** 2, -1))
     near = jnp.sum((xs - centre) ** 2, -1) <= r * r
