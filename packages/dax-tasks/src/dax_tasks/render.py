@@ -68,8 +68,11 @@ def table_region(env) -> np.ndarray:
 
 def _pixels(points, window, res: int):
     x0, x1, y0, y1, _ = window
-    u = (points[:, 0] - x0) / (x1 - x0) * res
-    v = (points[:, 1] - y0) / (y1 - y0) * res
+    # one subtraction and one multiplication by a host constant: with a division XLA may
+    # evaluate it differently in two programs (a reciprocal), and a point on a pixel
+    # boundary (the parked gripper at the centre of a symmetric view) lands in another pixel
+    u = (points[:, 0] - x0) * (res / (x1 - x0))
+    v = (points[:, 1] - y0) * (res / (y1 - y0))
     inside = (u >= 0) & (u < res) & (v >= 0) & (v < res)
     col = jnp.floor(u).astype(jnp.int32)
     row = res - 1 - jnp.floor(v).astype(jnp.int32)
@@ -217,8 +220,8 @@ class Camera:
         so rounding gives the pixel a point falls in (as :func:`height_map` splats it)."""
         x0, x1, y0, y1, _ = self.window
         xy = jnp.asarray(xy, jnp.float32)
-        col = (xy[..., 0] - x0) / (x1 - x0) * res - 0.5
-        row = (y1 - xy[..., 1]) / (y1 - y0) * res - 0.5
+        col = (xy[..., 0] - x0) * (res / (x1 - x0)) - 0.5  # as the pictures place them
+        row = (y1 - xy[..., 1]) * (res / (y1 - y0)) - 0.5
         return jnp.stack([row, col], axis=-1)
 
     def to_table(self, pixel, res: int = 64):
