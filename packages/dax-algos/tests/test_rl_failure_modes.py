@@ -18,10 +18,15 @@ from dax_algos import apg, common, rl
 from dax_tasks.wrappers import training_env
 
 
-def _missing_pick(env):
+def _missing_pick(env, points):
+    """An action picking 1 cm inside the corner of the action box that is farthest from
+    every one of ``points`` (the cloth lies anywhere on the table at any heading)."""
     lo, hi = np.asarray(env.spec.action_low), np.asarray(env.spec.action_high)
     mid = 0.5 * (lo + hi)
-    return jnp.asarray([lo[0] + 0.01, lo[1] + 0.01, *mid[2:]], jnp.float32)  # a far corner
+    xy = np.asarray(points).reshape(-1, 3)[:, :2]
+    corners = [(x, y) for x in (lo[0] + 0.01, hi[0] - 0.01) for y in (lo[1] + 0.01, hi[1] - 0.01)]
+    far = max(corners, key=lambda c: np.min(np.linalg.norm(xy - np.asarray(c), axis=1)))
+    return jnp.asarray([*far, *mid[2:]], jnp.float32)
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["no_adjustment", "adjustment"])
@@ -33,8 +38,9 @@ def cloth(request):
 def test_missed_pick_has_exactly_zero_simulator_gradient(cloth):
     _, state = cloth.reset(jax.random.PRNGKey(0))
     pts = np.asarray(cloth.object_points(state.physics))
-    action = _missing_pick(cloth)
-    assert action[0] < pts[:, 0].min() - 0.05 and action[1] < pts[:, 1].min() - 0.05
+    action = _missing_pick(cloth, pts)
+    gap = float(np.min(np.linalg.norm(pts[:, :2] - np.asarray(action[:2]), axis=1)))
+    assert gap > 0.05, f"the pick is only {gap:.3f} m from the cloth"
     grad = np.asarray(jax.jit(jax.grad(
         lambda a: cloth.step(state, a)[4]["r_gt"]))(action))
     if cloth.spec.contact_adjustment:
@@ -49,14 +55,14 @@ def test_apg_policy_gradient_is_exactly_zero_when_its_picks_miss(cloth):
     config = apg.APGConfig(num_envs=2, policy_hidden=(16,), aux_weight=0.0)
     pnet = apg.network(cloth, config)
     policy = pnet.init(jax.random.PRNGKey(0))
-    # bias the output layer so that the policy's action is the missing pick
-    z = common.to_normalised(cloth, _missing_pick(cloth))
-    last = policy["mean"]["layers"][len(config.policy_hidden)]
-    last["bias"][...] = jnp.arctanh(jnp.clip(z, -0.999, 0.999))
     venv = training_env(cloth, config.num_envs)
     rollout = apg.make_rollout(cloth, venv, pnet, config, cloth.horizon)
     params = rl.training_params(cloth.default_params, config.aux_weight)
     obs, state = venv.reset(jax.random.PRNGKey(1), params)
+    # bias the output layer so that the policy's action is a pick that misses both cloths
+    z = common.to_normalised(cloth, _missing_pick(cloth, state.physics.x))
+    last = policy["mean"]["layers"][len(config.policy_hidden)]
+    last["bias"][...] = jnp.arctanh(jnp.clip(z, -0.999, 0.999))
     norm = rl.ObsNorm.create(rl.feature_dim(cloth))
     grads = jax.jit(jax.grad(lambda p: rollout(p, norm, obs, state, jax.random.PRNGKey(2),
                                                params)[0]))(policy)

@@ -40,9 +40,10 @@ def test_observation_modes_batched_under_jit(fold, mode, shape, dtype):
     assert obs.shape == (2, *shape) and obs.dtype == dtype, (obs.shape, obs.dtype)
     assert env.observation_space.contains(np.asarray(obs[0])), f"{mode} obs outside its space"
     if mode == "height":
-        # the flat cloth covers a good part of the view (the goal's triangle is in it too)
+        # the view frames the whole table region the cloth may start in (0.7 m square,
+        # padded to 0.92 m), so the flat 0.3 m cloth covers about a tenth of it
         covered = float(jnp.mean(obs[0] > 0))
-        assert 0.15 < covered < 0.9, covered
+        assert 0.08 < covered < 0.5, covered
     if mode == "particles":
         np.testing.assert_array_equal(np.asarray(obs[0, :-1]), np.asarray(
             state.physics.x[0]))

@@ -39,8 +39,19 @@ class ClothScene:
     folds: canonical fold sequence of the task ("" none; "diag1" one diagonal fold;
         "diag3" three; "tshirt" sleeves in, then in half).
     unfold: the episode starts folded (``folds`` applied) and the goal is the flat cloth.
-    rotation_range [rad], offset_range [m]: initial pose randomisation (rotation about the
-        vertical axis through the table centre, then a translation in the table plane).
+    rotation_range [rad]: the start's heading is uniform in ``±rotation_range`` (default
+        pi: any heading), a rotation about the vertical axis through the cloth's centre.
+    table_half [m]: half-width of the square table region (centred on the table centre) that
+        the whole start cloth lies in, at its flat extent (so an unfolded cloth lies in it
+        too); the action box is 5 cm wider on every side.
+    offset_range [m]: the largest shift of the cloth's centre per axis; the shift is drawn
+        uniformly over the positions where the rotated flat cloth lies inside
+        ``±table_half`` and within ``±offset_range`` (default ``table_half``: no further
+        limit; 0 with ``rotation_range`` 0: the unrandomised start).
+    thickness [m]: self-collision thickness h (vertex pairs closer than h repel, see
+        :class:`dax_physics.cloth.ClothConfig`); 0 turns self-collision off.
+    self_stiffness [N/m], self_friction [N s/m], self_candidates: the self-collision's
+        repulsion stiffness, tangential friction and spatial-hash slots (ClothConfig).
     friction_model: the table friction law, ``"coulomb"`` (default: stick-slip) or
         ``"smooth"`` (a regularised law whose rollouts are smooth in the actions, for
         gradient-based planners; see :class:`dax_physics.cloth.ClothConfig`).
@@ -57,9 +68,15 @@ class ClothScene:
     grasp_radius: float = 0.25
     folds: str = "diag1"
     unfold: bool = False
-    rotation_range: float = 0.1
-    offset_range: float = 0.01
+    rotation_range: float = math.pi
+    table_half: float = 0.35
+    offset_range: float = 0.35
     friction_model: str = "coulomb"
+    thickness: float = 0.0
+    self_stiffness: float = 0.5
+    self_damping: float = 0.0
+    self_friction: float = 0.0
+    self_candidates: int = 16
 
     def __post_init__(self):
         if self.shape not in ("square", "tshirt"):
@@ -69,9 +86,16 @@ class ClothScene:
                              f"valid: {', '.join(FOLD_PLANS)}")
         if self.shape == "square" and self.n < 3:
             raise ValueError(f"a square cloth needs n >= 3 vertices per side, got {self.n}")
-        for name in ("size", "spacing", "dt", "grasp_radius"):
+        for name in ("size", "spacing", "dt", "grasp_radius", "table_half"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("thickness", "self_stiffness", "self_damping", "self_friction",
+                     "rotation_range",
+                     "offset_range"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.self_candidates < 1:
+            raise ValueError(f"self_candidates must be >= 1, got {self.self_candidates}")
         if self.settle_substeps < 0:
             raise ValueError(f"settle_substeps must be >= 0, got {self.settle_substeps}")
 
@@ -165,7 +189,11 @@ def cloth_config(scene: ClothScene) -> dc.ClothConfig:
     m = DEFAULT_MATERIAL
     return dc.ClothConfig(dt=scene.dt, friction_static=m["friction_static"],
                           friction_dynamic=m["friction_dynamic"], table_height=0.0,
-                          friction_model=scene.friction_model)
+                          friction_model=scene.friction_model, thickness=scene.thickness,
+                          self_stiffness=scene.self_stiffness,
+                          self_damping=scene.self_damping,
+                          self_friction=scene.self_friction,
+                          self_candidates=scene.self_candidates)
 
 
 @functools.lru_cache(maxsize=32)
@@ -191,7 +219,8 @@ def grasp_set(scene: ClothScene, x, pick, contact_adjustment: bool):
     r = scene.grasp_radius * scene.mesh_spacing
     # Only the layer under the fingers: the vertices near the centre in space *and* on the
     # cloth (rest positions) of the vertex nearest to it. Without that, a pick on a folded
-    # cloth would also lift the layer below (there is no self-collision to separate them).
+    # cloth would also lift a layer below wherever it lies within the grasp radius (with
+    # self-collision off the layers lie in one plane; with it, where a stack is squeezed).
     rest = jnp.asarray(_cloth_np(scene)[0], x.dtype)
     k = jnp.argmin(jnp.sum((xs - centre) ** 2, -1))
     near = jnp.sum((xs - centre) ** 2, -1) <= r * r
@@ -344,21 +373,43 @@ def flat_vertices(scene: ClothScene) -> np.ndarray:
 
 
 def rigid_pose(key, scene: ClothScene, x):
-    """``x`` rotated about the vertical axis through the origin by a uniform angle in
-    ``±rotation_range`` and shifted by a uniform offset in ``±offset_range`` (x and y)."""
+    """``x`` rotated about the vertical axis through the table centre by a heading uniform
+    in ``±rotation_range``, then shifted in the table plane by a uniform draw over the
+    shifts that keep the rotated flat cloth inside ``±table_half`` (and within
+    ``±offset_range`` per axis). ``x`` is a start in the canonical pose, so the flat cloth's
+    extent bounds it (and, for an unfold task, the cloth it unfolds into)."""
     k_rot, k_off = jax.random.split(key)
     # float32 draws in either precision: a seed gives the same pose under x64
     th = jax.random.uniform(k_rot, (), jnp.float32, minval=-scene.rotation_range,
                             maxval=scene.rotation_range)
-    off = jax.random.uniform(k_off, (2,), jnp.float32, minval=-scene.offset_range,
-                             maxval=scene.offset_range)
+    u = jax.random.uniform(k_off, (2,), jnp.float32)
     c, s = jnp.cos(th), jnp.sin(th)
-    xy = jnp.stack([c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1]], 1) + off
+
+    def rotate(p):  # element-wise, not a matrix product: bit-identical under vmap
+        return jnp.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], 1)
+
+    ext = rotate(jnp.asarray(flat_vertices(scene)[:, :2]))
+    lo = jnp.maximum(-scene.offset_range, -scene.table_half - jnp.min(ext, 0))
+    hi = jnp.minimum(scene.offset_range, scene.table_half - jnp.max(ext, 0))
+    off = lo + u * jnp.maximum(hi - lo, 0.0)
+    xy = rotate(x) + off
     return jnp.concatenate([xy, x[:, 2:]], 1)
 
 
+def check_fits(scene: ClothScene) -> None:
+    """Raise ``ValueError`` unless the flat cloth fits inside ``±table_half`` at every
+    heading (its farthest vertex from the centre is within ``table_half``)."""
+    r = float(np.max(np.linalg.norm(flat_vertices(scene)[:, :2], axis=1)))
+    if r > scene.table_half:
+        raise ValueError(f"table_half={scene.table_half} m is too small for this cloth: it "
+                         f"reaches {r:.3f} m from its centre at some heading")
+
+
+#: Margin [m] of the action box around the start region.
+REACH_MARGIN = 0.05
+
+
 def reach(scene: ClothScene) -> float:
-    """Half-width [m] of the action box in the table plane: the cloth's extent plus margin."""
-    v = flat_vertices(scene)
-    r = float(np.max(np.linalg.norm(v[:, :2], axis=1)))
-    return math.ceil((r + scene.offset_range + 0.05) * 100) / 100
+    """Half-width [m] of the action box in the table plane: the start region
+    (``table_half``) plus :data:`REACH_MARGIN`."""
+    return scene.table_half + REACH_MARGIN

@@ -10,7 +10,7 @@ whole domain is simulated (no moving window: spilled liquid may spread anywhere 
   2 cm = two cells so particles cannot tunnel, i.e. a 3 cm x 4 cm cavity) is held by the
   gripper. It is kinematic: the action sets its velocity each substep.
 * The *target* bowl (collider 1, outer radius 6 cm, height 6 cm, wall 2 cm) stands on the
-  table at ``target_xy``, fixed.
+  table at ``target_xy`` plus a random offset (see "Initial state"), fixed for the episode.
 * Pour-Water: water (weakly compressible fluid, ``bulk_modulus`` 2e4 Pa, rho 1000 kg/m^3)
   fills the source cavity to ``fill_height`` = 2.5 cm: 476 particles at 8 per cell.
 * Pour-Soup: water to 2 cm plus ``n_chunks`` = 3 stiff elastic cubes (tofu-like,
@@ -43,9 +43,15 @@ steps and reach pi/2 (opening sideways) in 21 of the 100 steps. Each action is h
 for the env step; the wrist is kept inside ``wrist_low``/``wrist_high`` and the tilt inside
 ``tilt_range`` by clipping the commanded velocity (a clipped component has zero gradient).
 
-Initial state: the source bowl's wrist at ``source_wrist`` plus a uniform random offset of
-up to ``init_range`` (2 cm, 2 cm, 1 cm) drawn from the seed, upright, contents at rest.
-Particles keep their index (same count, same order) for every seed.
+Initial state, drawn from the seed: the source bowl's wrist at ``source_wrist`` (0.09,
+0.12, 0.17) m plus a uniform offset of up to ``init_range`` (±2 cm in x, ±3 cm in y, ±1 cm
+in z), upright, contents at rest; the target bowl at ``target_xy`` (0.23, 0.12) m plus a
+uniform offset of up to ``target_range`` (±2 cm in x and y). The ranges keep both bowls
+inside the table (the floor inside the walls spans x 0.03-0.31 m and y 0.03-0.21 m; the
+target bowl's rim reaches x 0.31 m at most and the source bowl's y 0.04-0.20 m), the held
+bowl above the target's rim, and the pour point (below) inside the wrist's workspace.
+Particles keep their index (same count, same order) for every seed. (Before dax-tasks
+0.2.0 the target bowl did not move and the source's y range was ±2 cm.)
 
 Distance and reward: ``D = 1/N sum_i d_i`` [m], ``d_i`` the smooth (C1) Euclidean distance
 of particle i to the target bowl's cavity (a cylinder of the inner radius from the inner
@@ -54,18 +60,23 @@ bottom to the rim, grown by ``dx/2`` for particles resting against the walls), 0
 For the soup the chunks' particles count like water's (the ingredients must go too).
 λ = 20 /m: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
 about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
-scripted expert ends a Pour-Water episode at 0.876 +- 0.005 (seeds 0-19, dax-physics 0.3;
-the rest splashed onto the table) and a Pour-Soup episode at 0.918 +- 0.002, random actions
-at 0.335 and 0.200 (``dax-data score --task T --seeds 20``). With dax-physics 0.2 they were
+scripted expert ends a Pour-Water episode at 0.877 +- 0.004 (seeds 0-19, dax-physics 0.3;
+the rest splashed onto the table) and a Pour-Soup episode at 0.934 +- 0.002, random actions
+at 0.342 +- 0.011 and 0.214 +- 0.017 (``dax-bench run --tasks pour_water,pour_soup
+--methods random,expert --seeds 20 --quick``; with the target bowl fixed: 0.871, 0.914,
+0.341, 0.208). With dax-physics 0.2 they were
 0.950, 1.0, 0.15 and 0.13: its water held together by tension (negative pressure), splashed
 less and rested a cell below the table (so spilled water counted 1.1 cm further from the
 cavity); water without tension splashes more.
 ``goal(spec)`` (the (N, 3) goal set the template stores) is N particles packed on a
-regular lattice in the target cavity from its bottom up; ``D`` itself does not use it.
+regular lattice in the target cavity, at ``target_xy``, from its bottom up; ``D`` itself
+does not use it: it measures to the cavity of the episode's own target bowl
+(``physics.colliders.pos[TARGET]``).
 
 Expert (privileged state, see :func:`expert_action`): drive the wrist to the pour point
-above the target bowl, start tilting once within 2 cm of it, tilt to ``pour_angle``
-(2.3 rad) and hold, and tilt back over the last steps of the horizon.
+above the episode's target bowl (read from the state), start tilting once within 2 cm of
+it, tilt to ``pour_angle`` (2.3 rad) and hold, and tilt back over the last steps of the
+horizon.
 """
 
 from __future__ import annotations
@@ -118,7 +129,8 @@ class PourScene:
     target_bowl: tuple = (0.06, 0.06, 0.02)
     target_xy: tuple = (0.23, 0.12)      # target bowl centre [m]
     source_wrist: tuple = (0.09, 0.12, 0.17)  # initial wrist (rim centre) [m]
-    init_range: tuple = (0.02, 0.02, 0.01)    # uniform random wrist offset [m]
+    init_range: tuple = (0.02, 0.03, 0.01)    # uniform random wrist offset [m]
+    target_range: tuple = (0.02, 0.02)   # uniform random target bowl offset (x, y) [m]
     wrist_low: tuple = (0.07, 0.08, 0.15)
     wrist_high: tuple = (0.27, 0.16, 0.21)
     tilt_range: tuple = (-0.5, 2.6)      # [rad]
@@ -232,13 +244,17 @@ class Pour(MPMEnv):
 
     def init(self, key, params):
         """The source bowl at a random offset from ``source_wrist``, upright, contents at
-        rest."""
-        rng = jnp.asarray(self.spec.scene.init_range, jnp.float32)
-        off = jax.random.uniform(key, (3,), jnp.float32, minval=-1.0, maxval=1.0) * rng
+        rest, and the target bowl at a random offset from ``target_xy``."""
+        scene = self.spec.scene
+        k_src, k_tgt = jax.random.split(key)
+        rng = jnp.asarray(scene.init_range, jnp.float32)
+        off = jax.random.uniform(k_src, (3,), jnp.float32, minval=-1.0, maxval=1.0) * rng
+        trng = jnp.asarray(scene.target_range + (0.0,), jnp.float32)
+        t_off = jax.random.uniform(k_tgt, (3,), jnp.float32, minval=-1.0, maxval=1.0) * trng
         template = self._template
         cs = template.colliders
-        return template.replace(x=template.x + off,
-                                colliders=cs.replace(pos=cs.pos.at[SOURCE].add(off)))
+        pos = cs.pos.at[SOURCE].add(off).at[TARGET].add(t_off)
+        return template.replace(x=template.x + off, colliders=cs.replace(pos=pos))
 
     def apply_action(self, physics, action, params):
         """Hold ``(vx, vy, vz, omega)`` for ``spec.substeps`` substeps (see the module
@@ -297,16 +313,18 @@ class Pour(MPMEnv):
         return np.asarray(pts[order[:n]], np.float32)
 
     def expert(self, state, params):
-        """Scripted pour: drive the wrist to the pour point (``pour_offset`` from the target
-        bowl's centre at the table), tilt to ``pour_angle`` once within 2 cm of it, hold,
-        and tilt back to upright in the last steps of the horizon. Pure and jittable."""
+        """Scripted pour: drive the wrist to the pour point (``pour_offset`` from the
+        episode's target bowl's centre at the table), tilt to ``pour_angle`` once within 2 cm
+        of it, hold, and tilt back to upright in the last steps of the horizon. Pure and
+        jittable."""
         scene, spec = self.spec.scene, self.spec
         T = self.dt
         cs = state.physics.colliders
         w = wrist(scene, cs)
         th = tilt(cs)
-        p = jnp.asarray([scene.target_xy[0] + scene.pour_offset[0],
-                         scene.target_xy[1] + scene.pour_offset[1], scene.pour_offset[2]])
+        target = cs.pos[TARGET]  # where this episode's target bowl stands
+        p = jnp.stack([target[0] + scene.pour_offset[0], target[1] + scene.pour_offset[1],
+                       jnp.asarray(scene.pour_offset[2], target.dtype)])
         err = p - w
         v = err / (2.0 * T)
         near = jnp.sqrt(jnp.sum(err[:2] ** 2)) < 0.02

@@ -56,10 +56,23 @@ def view_window(points, extra=(), pad: float = 0.25, margin: float = 0.02):
             float(centre[1] + half), float(pts[:, 2].min()))
 
 
+def table_region(env) -> np.ndarray:
+    """The corners (4, 3) [m] of the table region where the env's object may start (a
+    cloth task's ``scene.table_half``; the cloth lies anywhere in it), or no points (0, 3),
+    so that every start is in view."""
+    half = getattr(getattr(env.unwrapped.spec, "scene", None), "table_half", None)
+    if half is None:
+        return np.zeros((0, 3))
+    return np.asarray([[sx * half, sy * half, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+
+
 def _pixels(points, window, res: int):
     x0, x1, y0, y1, _ = window
-    u = (points[:, 0] - x0) / (x1 - x0) * res
-    v = (points[:, 1] - y0) / (y1 - y0) * res
+    # one subtraction and one multiplication by a host constant: with a division XLA may
+    # evaluate it differently in two programs (a reciprocal), and a point on a pixel
+    # boundary (the parked gripper at the centre of a symmetric view) lands in another pixel
+    u = (points[:, 0] - x0) * (res / (x1 - x0))
+    v = (points[:, 1] - y0) * (res / (y1 - y0))
     inside = (u >= 0) & (u < res) & (v >= 0) & (v < res)
     col = jnp.floor(u).astype(jnp.int32)
     row = res - 1 - jnp.floor(v).astype(jnp.int32)
@@ -193,7 +206,8 @@ class Camera:
             _, state = jax.jit(env.reset)(key, params)
             pts = np.asarray(env.object_points(state.physics))
             ee = np.asarray(env.end_effector(state.physics))
-        return Camera(view_window(pts, extra=(np.asarray(params.goal), ee)),
+        return Camera(view_window(pts, extra=(np.asarray(params.goal), ee,
+                                              table_region(env))),
                       0.75 * point_spacing(pts))
 
     def height(self, points, res: int = 64):
@@ -206,8 +220,8 @@ class Camera:
         so rounding gives the pixel a point falls in (as :func:`height_map` splats it)."""
         x0, x1, y0, y1, _ = self.window
         xy = jnp.asarray(xy, jnp.float32)
-        col = (xy[..., 0] - x0) / (x1 - x0) * res - 0.5
-        row = (y1 - xy[..., 1]) / (y1 - y0) * res - 0.5
+        col = (xy[..., 0] - x0) * (res / (x1 - x0)) - 0.5  # as the pictures place them
+        row = (y1 - xy[..., 1]) * (res / (y1 - y0)) - 0.5
         return jnp.stack([row, col], axis=-1)
 
     def to_table(self, pixel, res: int = 64):

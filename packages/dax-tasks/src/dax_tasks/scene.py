@@ -119,9 +119,10 @@ class SceneView:
         :attr:`ELEVATION` degrees, framing the object at the start of the episode drawn from
         ``key`` (default ``PRNGKey(0)``), the goal (``params.goal``), the end effector, the
         kinematic colliders (the pour tasks' bowls) and the space under them on the table,
-        plus the wrist's workspace where the scene has one (``wrist_low``/``wrist_high``),
-        padded. Host side, once per env."""
-        from .render import point_spacing
+        plus the wrist's workspace where the scene has one (``wrist_low``/``wrist_high``)
+        and the table region a cloth may start in (``table_half``), padded. Host side, once
+        per env."""
+        from .render import point_spacing, table_region
 
         key = jax.random.PRNGKey(0) if key is None else key
         params = env.default_params if params is None else params
@@ -141,6 +142,7 @@ class SceneView:
         if hasattr(scene, "wrist_low") and hasattr(scene, "wrist_high"):
             lo, hi = np.asarray(scene.wrist_low), np.asarray(scene.wrist_high)
             parts.append(np.stack(np.meshgrid(*zip(lo, hi, strict=True)), -1).reshape(-1, 3))
+        parts.append(table_region(env) + [0.0, 0.0, table_z])
         allp = np.concatenate(parts)
         allp = np.concatenate([allp, allp * [1, 1, 0] + [0, 0, table_z]])  # the floor under
         lo, hi = allp.min(0), allp.max(0)
