@@ -17,6 +17,7 @@ Units are SI, z is up. Every public function is pure and works under ``jax.jit``
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -391,31 +392,84 @@ def _stencil_spring_forces(cloth: Cloth, xt, vt):
 
     One slot per class and end: vertex i reads its neighbour ``i + offsets[s]`` from the
     zero-padded arrays by a static slice, so every spring is evaluated from both ends and
-    nothing is scattered. Written as a running sum over the slots (not a stacked array):
-    on CPU that is several times faster, as XLA fuses each slot into one loop."""
-    V = xt.shape[1]
+    nothing is scattered (:func:`_stencil_sum`, with a hand-written reverse pass that is a
+    stencil too)."""
     zero = jnp.zeros((1,), cloth.stiffness.dtype)
     e = cloth.stencil_edge  # (S, V); index E: no spring, k = c = L = 0
     k = jnp.concatenate([cloth.stiffness, zero])[e]
     L = jnp.concatenate([cloth.rest_length, zero])[e]
     c = jnp.concatenate([cloth.damping, zero])[e]
-    w = max(abs(o) for o in cloth.offsets)
-    xp = jnp.pad(xt, ((0, 0), (w, w)))
-    vp = jnp.pad(vt, ((0, 0), (w, w)))
+    return _stencil_sum(cloth.offsets, k, L, c, xt, vt)
+
+
+def _shifted(a, o: int):
+    """``a`` (3, V) read at index ``i + o`` for every i, zero outside (a static slice)."""
+    V = a.shape[-1]
+    w = abs(o)
+    return jnp.pad(a, ((0, 0), (w, w)))[:, w + o:w + o + V]
+
+
+def _materialised(a):
+    """``a`` unchanged, as the output of a reduction (a sum over a length-2 axis with zeros):
+    on CPU XLA does not fuse a reduction into its consumers, so ``a`` is computed once.
+    Without it XLA copies a running sum over the slots into every fusion that reads it
+    (the velocity update, the table contact, each output), which measured 5-15x slower."""
+    return jnp.sum(jnp.stack([a, jnp.zeros_like(a)]), axis=0)
+
+
+def _slot_geometry(k, L, c, d, dv):
+    """Per slot: unit direction ``u`` (3, V), length ``ln``, the force magnitude ``s`` and
+    ``dv . u``, for the spring vector ``d`` and relative velocity ``dv`` (3, V)."""
+    ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _TINY)
+    inv = 1.0 / ln
+    u = d * inv
+    vu = dv[0] * u[0] + dv[1] * u[1] + dv[2] * u[2]
+    return u, ln, inv, vu, k * (ln - L) + c * vu
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _stencil_sum(offsets, k, L, c, xt, vt):
+    """``f_i = sum_s (k (ln - L) + c dv.u) u`` with ``d = x_{i + o_s} - x_i``, ``u = d / ln``
+    (the springs of the stencil slots; ``offsets`` a static tuple, k, L, c (S, V))."""
     f = jnp.zeros_like(xt)
-    for slot, o in enumerate(cloth.offsets):
-        d = xp[:, w + o:w + o + V] - xt  # towards the neighbour
-        dv = vp[:, w + o:w + o + V] - vt
-        ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _TINY)
-        inv = 1.0 / ln
-        s = (k[slot] * (ln - L[slot]) + c[slot] * (dv[0] * d[0] + dv[1] * d[1]
-                                                   + dv[2] * d[2]) * inv) * inv
-        f = f + s[None] * d
-    # A reduction is not fused into its consumers on CPU, so this sum over a length-2 axis
-    # (f and zeros: the same numbers) materialises f once. Without it XLA copies the
-    # running sum above into every fusion that reads the force (the velocity update, the
-    # table contact, each output), which measured 5-15x slower per substep.
-    return jnp.sum(jnp.stack([f, jnp.zeros_like(f)]), axis=0)
+    for slot, o in enumerate(offsets):
+        d, dv = _shifted(xt, o) - xt, _shifted(vt, o) - vt
+        u, _, _, _, s = _slot_geometry(k[slot], L[slot], c[slot], d, dv)
+        f = f + s[None] * u
+    return _materialised(f)
+
+
+def _stencil_sum_fwd(offsets, k, L, c, xt, vt):
+    return _stencil_sum(offsets, k, L, c, xt, vt), (k, L, c, xt, vt)
+
+
+def _stencil_sum_bwd(offsets, res, g):
+    """Reverse pass: per slot ``q = (dF/dd)^T g_i`` and ``qv = (dF/ddv)^T g_i``, which go
+    to the neighbour ``i + o`` (read back with the shift ``-o``) and, negated, to i."""
+    k, L, c, xt, vt = res
+    ct_x, ct_v = jnp.zeros_like(xt), jnp.zeros_like(vt)
+    ck, cL, cc = [], [], []
+    for slot, o in enumerate(offsets):
+        d, dv = _shifted(xt, o) - xt, _shifted(vt, o) - vt
+        u, ln, inv, vu, s = _slot_geometry(k[slot], L[slot], c[slot], d, dv)
+        ug = u[0] * g[0] + u[1] * g[1] + u[2] * g[2]
+        # dF/dd = k u u^T + s (I - u u^T) / ln + c u dv^T (I - u u^T) / ln (symmetric
+        # parts transposed); dF/ddv = c u u^T
+        perp_g = g - u * ug[None]
+        perp_dv = dv - u * vu[None]
+        q = (k[slot] * ug)[None] * u + (s * inv)[None] * perp_g \
+            + (c[slot] * ug * inv)[None] * perp_dv
+        qv = (c[slot] * ug)[None] * u
+        ct_x = ct_x + _shifted(q, -o) - q
+        ct_v = ct_v + _shifted(qv, -o) - qv
+        ck.append((ln - L[slot]) * ug)
+        cL.append(-k[slot] * ug)
+        cc.append(vu * ug)
+    return (jnp.stack(ck), jnp.stack(cL), jnp.stack(cc), _materialised(ct_x),
+            _materialised(ct_v))
+
+
+_stencil_sum.defvjp(_stencil_sum_fwd, _stencil_sum_bwd)
 
 
 def spring_forces(cloth: Cloth, x, v):
@@ -597,7 +651,9 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
         vt = _col.apply_colliders(cfg.colliders, state.colliders, xt.T, vt.T).T
     cnt = jnp.sum(state.grip, axis=0)
     attached = cnt > 0
-    v_grip = (state.gripper_vel.T @ state.grip) / jnp.maximum(cnt, 1.0)
+    # a sum of products, not a matmul: it fuses with its neighbours (a dot does not)
+    v_grip = jnp.sum(state.gripper_vel[:, :, None] * state.grip[:, None, :], axis=0) \
+        / jnp.maximum(cnt, 1.0)
     vt = jnp.where(attached, v_grip, vt)
     if cfg.table_height is not None:
         x_new, vt = _table_contact(cfg, xt, vt, ~attached, cloth.table_friction)
