@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import time
 
 import jax
 import jax.numpy as jnp
@@ -82,16 +83,17 @@ def resolution(env) -> dict:
 
 
 def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
-                grad: bool = True) -> dict:
+                grad: bool = True, clock=time.perf_counter) -> dict:
     """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
     argument of every timed function (data, as a learner passes them). ``grad=False``
-    skips the step-plus-gradient (its figures are then null)."""
+    skips the step-plus-gradient (its figures are then null); ``clock`` times the calls
+    (:func:`dax_physics.tools.timing.median_time`)."""
     if batch is not None:
         env = VmapWrapper(env, batch_size=batch)
     params = env.default_params
     key = jax.random.PRNGKey(0)
     reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
-    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time)
+    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time, clock=clock)
     _, state = reset(key, params)
     if env.has_expert:
         action = jax.jit(env.expert_action)(state, params)
@@ -100,7 +102,7 @@ def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
         shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
         action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
-    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time)
+    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time, clock=clock)
     b = 1 if batch is None else batch
     out = {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
            "step_grad_s": None, "compile_reset_s": c_reset, "compile_step_s": c_step,
@@ -113,7 +115,7 @@ def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
 
     grad = jax.jit(jax.value_and_grad(total_reward))
     grad_c, c_grad = timed_compile(grad, action, state, params)
-    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time)
+    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time, clock=clock)
     g = np.asarray(grad_c(action, state, params)[1])
     finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
     out.update(step_grad_s=t_grad, compile_grad_s=c_grad, grad_finite=finite,
@@ -123,7 +125,7 @@ def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
 
 def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
                min_time: float = 0.0, resolution_name: str = "default",
-               grad: bool = True) -> dict:
+               grad: bool = True, clock=time.perf_counter) -> dict:
     env = make(name, resolution=resolution_name, **(overrides or {}))
     record = {"bench": "task", "task": name, "resolution": resolution_name,
               **resolution(env), "daxbench": DAXBENCH.get(name), "batches": []}
@@ -131,7 +133,8 @@ def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
         print(f"[dax_tasks.tools.bench] {name} ({resolution_name}) batch {b}",
               file=sys.stderr, flush=True)
         record["batches"].append(bench_batch(env, None if b == 1 else b, reps, min_time,
-                                             grad))
+                                             grad, clock))
+    record["clock"] = "process" if clock is time.process_time else "wall"
     record["peak_rss_mb"] = peak_rss_mb()
     record["device"] = str(jax.devices()[0])
     return record
@@ -152,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "'reference' (the original benchmark's points and substeps)")
     p.add_argument("--no-grad", action="store_true",
                    help="skip the step-plus-gradient timing (null in the output)")
+    p.add_argument("--clock", choices=("wall", "process"), default="wall",
+                   help="wall time (default) or the process's CPU time (steadier on a shared "
+                        "machine; pin the process to one core with taskset to compare)")
     p.add_argument("--json", action="store_true", help="one JSON line per task")
     return p
 
@@ -181,11 +187,12 @@ def main(argv=None, overrides: dict | None = None) -> list:
     if any(b < 1 for b in batches) or args.reps < 1:
         print("error: batch sizes and --reps must be >= 1", file=sys.stderr)
         raise SystemExit(2)
+    clock = time.process_time if args.clock == "process" else time.perf_counter
     records = []
     for res in resolutions:
         for name in names:
             rec = bench_task(name, batches, args.reps, overrides, args.min_time, res,
-                             not args.no_grad)
+                             not args.no_grad, clock)
             emit(rec, args.json)
             records.append(rec)
     return records
