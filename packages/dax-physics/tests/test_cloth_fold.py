@@ -92,8 +92,12 @@ def test_checkpointed_rollout_gives_identical_values_and_gradients():
     v0 = jnp.array([0.05, 0.05, 0.1])
     l1, g1 = jax.jit(jax.value_and_grad(lambda v: loss(v, None)))(v0)
     l2, g2 = jax.jit(jax.value_and_grad(lambda v: loss(v, 70)))(v0)  # 4 segments + 20
-    assert float(l1) == float(l2), f"expected equal losses, got {l1} vs {l2}"
-    np.testing.assert_allclose(g2, g1, rtol=1e-6, atol=1e-9,
+    # equal up to float rounding: XLA fuses the substep differently inside the
+    # checkpointed segments (measured: 1 ulp of the loss, 1.3e-6 of the gradient after
+    # 300 float32 substeps)
+    np.testing.assert_allclose(float(l2), float(l1), rtol=1e-6,
+                               err_msg="expected the checkpointed loss equal to the plain one")
+    np.testing.assert_allclose(g2, g1, rtol=1e-5, atol=1e-9,
                                err_msg="expected checkpointed gradients equal to plain ones")
 
 

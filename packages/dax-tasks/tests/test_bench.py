@@ -28,3 +28,10 @@ def test_bench_unknown_task_exits_2(capsys):
         bench.main(["--tasks", "fold_origami"])
     assert exc.value.code == 2
     assert "valid names" in capsys.readouterr().err
+
+
+def test_bench_unknown_resolution_exits_2(capsys):
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--tasks", "fold_cloth1", "--resolution", "default,fine"])
+    assert exc.value.code == 2
+    assert "default, reference" in capsys.readouterr().err

@@ -21,6 +21,7 @@ from . import checks, goals, io, render, rewards, wrappers
 from .env import Env, EnvParams, EnvState
 from .goals import GoalFileError
 from .registry import (
+    RESOLUTIONS,
     TASKS,
     available,
     check_overrides,
@@ -81,7 +82,8 @@ def _register_gym_ids() -> None:
 _register_gym_ids()
 
 __all__ = [
-    "TASKS", "Box", "Env", "EnvParams", "EnvState", "GoalFileError", "TaskSpec", "__version__",
+    "RESOLUTIONS", "TASKS", "Box", "Env", "EnvParams", "EnvState", "GoalFileError", "TaskSpec",
+    "__version__",
     "auxiliary_reward", "available", "chamfer", "check_overrides", "checks", "env_class",
     "get_spec", "goals", "ground_truth_reward", "io", "l2_correspondence", "make", "render",
     "rewards", "spec_from_json", "wrappers",

@@ -361,3 +361,14 @@ def _spec(name: str, scene: PourScene, substeps: int) -> TaskSpec:
 
 POUR_WATER = _spec("pour_water", PourScene(), 30)
 POUR_SOUP = _spec("pour_soup", PourScene(dt=0.025 / 36, fill_height=0.02, n_chunks=3), 36)
+#: The original benchmark's resolution (``make(name, resolution="reference")``).
+#: Pour-Water: its 702 particles (``ppc`` 11 for 8: 690); its 23 substeps per 25 ms step
+#: would exceed this fluid's stable dt (0.84 ms), so the default's 30 stay; the whole
+#: 34 x 24 x 28 grid stays too (the bowls need it: 22848 cells for its active
+#: 26 x 20 x 26 = 13520). Pour-Soup: its 7631 particles with the grid refined to
+#: dx = 5 mm (68 x 48 x 56 = 182784 cells for its 128 x 64 x 128 = 1048576) and ``ppc``
+#: 19 (7891 particles; 17 and 18 give 6977); 72 substeps of 0.35 ms (the stable bound at
+#: 5 mm; it has 25).
+POUR_WATER_REFERENCE = _spec("pour_water", PourScene(ppc=11), 30)
+POUR_SOUP_REFERENCE = _spec("pour_soup", PourScene(
+    dx=0.005, domain=(68, 48, 56), ppc=19, dt=0.025 / 72, fill_height=0.02, n_chunks=3), 72)

@@ -35,6 +35,12 @@ _MODULES = MappingProxyType({
 #: The :class:`EnvParams` fields ``make`` accepts as overrides of the default params.
 PARAM_OVERRIDES = ("lam", "aux_weight")
 
+#: ``make(name, resolution=...)``: ``"default"`` (the task's own resolution, chosen for
+#: speed at the accuracy its README states) or ``"reference"`` (the original DaXBench
+#: benchmark's particle or vertex count and substeps per step as closely as the scene
+#: allows, for speed comparisons at equal work; each task module says how it matches).
+RESOLUTIONS = ("default", "reference")
+
 
 def _implemented(name: str) -> bool:
     module, cls, attr = _MODULES[name]
@@ -64,9 +70,15 @@ def _entry(name: str):
     return getattr(mod, cls), getattr(mod, attr)
 
 
-def get_spec(name: str) -> TaskSpec:
-    """The default :class:`TaskSpec` of task ``name``."""
-    return _entry(name)[1]
+def get_spec(name: str, resolution: str = "default") -> TaskSpec:
+    """The :class:`TaskSpec` of task ``name`` at ``resolution`` (:data:`RESOLUTIONS`)."""
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"unknown resolution {resolution!r}; valid: {', '.join(RESOLUTIONS)}")
+    spec = _entry(name)[1]
+    if resolution == "reference":
+        module, _, attr = _MODULES[name]
+        spec = getattr(importlib.import_module(module), f"{attr}_REFERENCE")
+    return spec
 
 
 def spec_from_json(data: dict) -> TaskSpec:
@@ -108,8 +120,13 @@ def check_overrides(name: str, overrides: dict) -> dict:
 
 
 def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=None,
-         cache_goal: bool = True, allow_goal_mismatch: bool = False, **overrides) -> Env:
+         cache_goal: bool = True, allow_goal_mismatch: bool = False,
+         resolution: str = "default", **overrides) -> Env:
     """Build task ``name`` as a pure environment (:class:`dax_tasks.Env`).
+
+    resolution: ``"default"`` or ``"reference"`` (:data:`RESOLUTIONS`): the spec the
+        overrides apply to; ``"reference"`` is the original benchmark's particle or
+        vertex count and substeps per step (``get_spec(name, "reference")``).
 
     overrides: :class:`TaskSpec` fields (``horizon=3``, ``substeps=50``, a new ``scene``,
         ``contact_adjustment=False``: a new program) and the default-params fields ``lam``
@@ -128,10 +145,11 @@ def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=Non
     Batching, auto-reset and episode statistics are wrappers the caller chooses
     (:mod:`dax_tasks.wrappers`); the Gymnasium ids are in :mod:`dax_tasks.gym`.
     """
-    cls, default = _entry(name)
+    cls, _ = _entry(name)
+    base = get_spec(name, resolution)
     overrides = check_overrides(name, overrides)
     param_changes = {k: overrides.pop(k) for k in PARAM_OVERRIDES if k in overrides}
-    spec = dataclasses.replace(default, **overrides)
+    spec = dataclasses.replace(base, **overrides)
     env = cls(spec)
     points, provenance = goals.resolve_goal(env, goal_path, use_cache=cache_goal,
                                             allow_mismatch=allow_goal_mismatch)

@@ -1,4 +1,5 @@
-"""Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-fold``, ``cloth-sag-study``.
+"""Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-fold``, ``cloth-sag-study``,
+``cloth-mesh``.
 
 ``dax_physics.tools.bench`` registers these with :func:`add_subparsers`; standalone use:
 ``python -m dax_physics.tools.bench_cloth cloth-drop --n 64 --substeps 1000 --json``.
@@ -161,6 +162,70 @@ def run_sag_study(args):
 
 # ----------------------------------------------------------------------------- CLI
 
+# ----------------------------------------------------------------------------- cloth-mesh
+
+def mesh_scene(n: int, dt: float = 2.5e-4):
+    """The cloth tasks' square cloth on the mesh path: 0.3 m, n x n vertices, 0.2 kg/m^2,
+    stretch = shear 10 N/m, bend 0.5 N/m, dashpot 0.01, table friction 1.0 / 0.8, one
+    vertex held by a gripper moving at (0.1, 0, 0.05) m/s. Returns ``(cfg, cloth, state)``."""
+    cloth = c.square_cloth(n, size=(0.3, 0.3), origin=(-0.15, -0.15), density=0.2,
+                           stretch=10.0, shear=10.0, bend=0.5, damping=0.01)
+    cloth = cloth.replace(table_friction=jnp.asarray([1.0, 0.8], jnp.float32))
+    cfg = c.ClothConfig(dt=dt, table_height=0.0)
+    state = c.ClothState.create(cloth, n_grippers=1)
+    state = state.replace(grip=state.grip.at[0, 0].set(1.0),
+                          gripper_vel=jnp.asarray([[0.1, 0.0, 0.05]], jnp.float32))
+    return cfg, cloth, state
+
+
+def run_cloth_mesh(args):
+    """Forward and forward-plus-gradient time of ``--substeps`` mesh-path substeps with the
+    stencil spring sum and with the scatter sum (the same cloth without its layout), the
+    two interleaved; process time by default (``--wall`` for wall time), which on a
+    shared machine with the process pinned to one core (``taskset -c 1``) is the steadier
+    figure."""
+    clock = time.perf_counter if args.wall else time.process_time
+    for n in [int(v) for v in args.ns.split(",")]:
+        emit(_mesh_record(n, args.substeps, args.reps, clock, args.wall), args.json)
+
+
+def _mesh_record(n: int, S: int, reps: int, clock, wall: bool) -> dict:
+    cfg, cloth, state = mesh_scene(n)
+    variants = {"stencil": cloth,
+                "scatter": cloth.replace(offsets=(), stencil_edge=None, residual=None)}
+    fwd = jax.jit(lambda cl, s: jax.lax.scan(lambda s, _: (c.step(cfg, cl, s), None), s,
+                                             None, length=S)[0].x)
+
+    def loss(gv, cl, s):
+        s = s.replace(gripper_vel=gv)
+        out = jax.lax.scan(lambda s, _: (c.step(cfg, cl, s), None), s, None, length=S)[0]
+        return jnp.sum(out.x[:, 2] ** 2) + jnp.sum(out.x[:, 0])
+    grad = jax.jit(jax.grad(loss))
+    times = {k: {"forward": [], "grad": []} for k in variants}
+    for cl in variants.values():  # compile and warm up
+        jax.block_until_ready((fwd(cl, state), grad(state.gripper_vel, cl, state)))
+    for rep in range(reps):
+        for k, cl in variants.items():
+            t0 = clock()
+            jax.block_until_ready(fwd(cl, state))
+            times[k]["forward"].append(clock() - t0)
+            if rep < max(reps // 2, 1):
+                t0 = clock()
+                jax.block_until_ready(grad(state.gripper_vel, cl, state))
+                times[k]["grad"].append(clock() - t0)
+    V = cloth.n_vertices
+    x = {k: np.asarray(fwd(cl, state)) for k, cl in variants.items()}
+    rec = {"bench": "cloth-mesh", "n": n, "vertices": V, "springs": int(cloth.pairs.shape[0]),
+           "substeps": S, "clock": "wall" if wall else "process",
+           "max_abs_dx_stencil_vs_scatter_m": float(np.abs(x["stencil"] - x["scatter"]).max())}
+    for k in variants:
+        t_f = float(np.median(times[k]["forward"]))
+        rec[k] = {"forward_s": t_f, "us_per_substep": 1e6 * t_f / S,
+                  "vertex_substeps_per_s": V * S / t_f,
+                  "forward_grad_s": float(np.median(times[k]["grad"]))}
+    return rec
+
+
 def add_subparsers(subparsers):
     """Register ``cloth-drop``, ``cloth-fold`` and ``cloth-sag-study`` on an argparse
     subparsers object; each sets ``func`` so the caller runs ``args.func(args)``."""
@@ -178,6 +243,14 @@ def add_subparsers(subparsers):
     p.add_argument("--reps", type=int, default=3)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=run_cloth_fold)
+
+    p = subparsers.add_parser("cloth-mesh", help="mesh path: stencil vs scatter spring sum")
+    p.add_argument("--ns", default="11,16,23", help="square cloth sizes (n x n vertices)")
+    p.add_argument("--substeps", type=int, default=2000)
+    p.add_argument("--reps", type=int, default=6)
+    p.add_argument("--wall", action="store_true", help="wall time instead of process time")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run_cloth_mesh)
 
     p = subparsers.add_parser("cloth-sag-study", help="resolution/substep vs sag error")
     p.add_argument("--ns", default="7,13,25")

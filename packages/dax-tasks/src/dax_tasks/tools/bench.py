@@ -5,6 +5,12 @@ stdout (``--json``); progress on stderr. Speed is measured here, never asserted 
 
     python -m dax_tasks.tools.bench --json                         # all tasks, batch 1 and 8
     python -m dax_tasks.tools.bench --json --tasks fold_cloth1 --batch 1 --reps 5
+    python -m dax_tasks.tools.bench --json --resolution default,reference --batch 1
+
+``--resolution reference`` builds each task at the original DaXBench benchmark's particle
+or vertex count and substeps per step (``dax_tasks.make(name, resolution="reference")``),
+so its time compares with the original's at equal work; every record carries the
+original's figures (:data:`DAXBENCH`) beside the measured ones.
 
 Times are medians over at least ``--reps`` calls and ``--min-time`` seconds (at most 50
 calls) after the compiled function's first call; compile
@@ -20,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import time
 
 import jax
 import jax.numpy as jnp
@@ -27,8 +34,35 @@ import numpy as np
 
 from dax_physics.tools.timing import emit, median_time, peak_rss_mb, timed_compile
 
-from ..registry import TASKS, available, make
+from ..registry import RESOLUTIONS, TASKS, available, make
 from ..wrappers import VmapWrapper
+
+#: The original DaXBench benchmark, measured on the 2-core CPU class the README's tables
+#: use (jax 0.4.13, batch 1, steady env step; noise +-15-20 %): what it simulates per env
+#: step and how long a step takes [s] (``grad_s``: step plus gradient, where measured).
+#: Cloth: mass-spring; the square cloths are a 16 x 32 mask on an 80 x 80 lattice, 40
+#: sub-actions x 50 substeps. MPM: ``grid`` is the grid resolution, ``active`` the cells
+#: it simulates.
+DAXBENCH = {
+    "fold_cloth1": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                    "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "fold_cloth3": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                    "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "unfold_cloth1": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                      "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "unfold_cloth3": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                      "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "fold_tshirt": {"model": "mass-spring", "object_points": 3573, "substeps": 2000,
+                    "dt": 5e-4, "step_s": 0.664, "grad_s": 5.06},
+    "push_rope": {"model": "MPM rope", "object_points": 582, "substeps": 3990, "dt": 5e-5,
+                  "grid": 128, "active": [64, 6, 64], "step_s": 19.0},
+    "whip_rope": {"model": "MPM", "object_points": 67, "substeps": 70, "dt": 1e-4,
+                  "grid": 64, "active": [32, 32, 32], "step_s": 0.085},
+    "pour_water": {"model": "MPM liquid", "object_points": 702, "substeps": 23, "dt": 3e-4,
+                   "grid": 80, "active": [26, 20, 26], "step_s": 0.130},
+    "pour_soup": {"model": "MPM", "object_points": 7631, "substeps": 25, "dt": 4e-4,
+                  "grid": 128, "active": [128, 64, 128], "step_s": 6.81},
+}
 
 #: Scene fields reported as the task's resolution when the scene has them.
 RESOLUTION_FIELDS = ("dx", "dt", "domain", "window", "ppc", "n", "size", "spacing", "shape")
@@ -48,15 +82,18 @@ def resolution(env) -> dict:
     return out
 
 
-def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0) -> dict:
+def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
+                grad: bool = True, clock=time.perf_counter) -> dict:
     """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
-    argument of every timed function (data, as a learner passes them)."""
+    argument of every timed function (data, as a learner passes them). ``grad=False``
+    skips the step-plus-gradient (its figures are then null); ``clock`` times the calls
+    (:func:`dax_physics.tools.timing.median_time`)."""
     if batch is not None:
         env = VmapWrapper(env, batch_size=batch)
     params = env.default_params
     key = jax.random.PRNGKey(0)
     reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
-    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time)
+    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time, clock=clock)
     _, state = reset(key, params)
     if env.has_expert:
         action = jax.jit(env.expert_action)(state, params)
@@ -65,30 +102,39 @@ def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0) -> dic
         shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
         action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
-    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time)
+    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time, clock=clock)
+    b = 1 if batch is None else batch
+    out = {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
+           "step_grad_s": None, "compile_reset_s": c_reset, "compile_step_s": c_step,
+           "compile_grad_s": None, "grad_finite": None, "grad_norm": None}
+    if not grad:
+        return out
 
     def total_reward(a, s, p):
         return jnp.sum(env.step(s, a, p)[2])
 
     grad = jax.jit(jax.value_and_grad(total_reward))
     grad_c, c_grad = timed_compile(grad, action, state, params)
-    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time)
+    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time, clock=clock)
     g = np.asarray(grad_c(action, state, params)[1])
     finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
-    b = 1 if batch is None else batch
-    return {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
-            "step_grad_s": t_grad, "compile_reset_s": c_reset, "compile_step_s": c_step,
-            "compile_grad_s": c_grad, "grad_finite": finite,
-            "grad_norm": float(np.linalg.norm(g)) if finite else None}
+    out.update(step_grad_s=t_grad, compile_grad_s=c_grad, grad_finite=finite,
+               grad_norm=float(np.linalg.norm(g)) if finite else None)
+    return out
 
 
 def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
-               min_time: float = 0.0) -> dict:
-    env = make(name, **(overrides or {}))
-    record = {"bench": "task", "task": name, **resolution(env), "batches": []}
+               min_time: float = 0.0, resolution_name: str = "default",
+               grad: bool = True, clock=time.perf_counter) -> dict:
+    env = make(name, resolution=resolution_name, **(overrides or {}))
+    record = {"bench": "task", "task": name, "resolution": resolution_name,
+              **resolution(env), "daxbench": DAXBENCH.get(name), "batches": []}
     for b in batches:
-        print(f"[dax_tasks.tools.bench] {name} batch {b}", file=sys.stderr, flush=True)
-        record["batches"].append(bench_batch(env, None if b == 1 else b, reps, min_time))
+        print(f"[dax_tasks.tools.bench] {name} ({resolution_name}) batch {b}",
+              file=sys.stderr, flush=True)
+        record["batches"].append(bench_batch(env, None if b == 1 else b, reps, min_time,
+                                             grad, clock))
+    record["clock"] = "process" if clock is time.process_time else "wall"
     record["peak_rss_mb"] = peak_rss_mb()
     record["device"] = str(jax.devices()[0])
     return record
@@ -104,6 +150,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-time", type=float, default=1.0,
                    help="time each measurement for at least this many seconds (at most 50 "
                         "calls); run-to-run noise on 2 shared cores is about 10 %%")
+    p.add_argument("--resolution", default="default",
+                   help="comma-separated resolutions: 'default' (the task's own) and/or "
+                        "'reference' (the original benchmark's points and substeps)")
+    p.add_argument("--no-grad", action="store_true",
+                   help="skip the step-plus-gradient timing (null in the output)")
+    p.add_argument("--clock", choices=("wall", "process"), default="wall",
+                   help="wall time (default) or the process's CPU time (steadier on a shared "
+                        "machine; pin the process to one core with taskset to compare)")
     p.add_argument("--json", action="store_true", help="one JSON line per task")
     return p
 
@@ -123,17 +177,24 @@ def main(argv=None, overrides: dict | None = None) -> list:
     try:
         names = parse_tasks(args.tasks)
         batches = [int(b) for b in args.batch.split(",")]
+        resolutions = [r.strip() for r in args.resolution.split(",") if r.strip()]
+        bad = [r for r in resolutions if r not in RESOLUTIONS]
+        if bad or not resolutions:
+            raise ValueError(f"unknown resolution(s) {bad}; valid: {', '.join(RESOLUTIONS)}")
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
     if any(b < 1 for b in batches) or args.reps < 1:
         print("error: batch sizes and --reps must be >= 1", file=sys.stderr)
         raise SystemExit(2)
+    clock = time.process_time if args.clock == "process" else time.perf_counter
     records = []
-    for name in names:
-        rec = bench_task(name, batches, args.reps, overrides, args.min_time)
-        emit(rec, args.json)
-        records.append(rec)
+    for res in resolutions:
+        for name in names:
+            rec = bench_task(name, batches, args.reps, overrides, args.min_time, res,
+                             not args.no_grad, clock)
+            emit(rec, args.json)
+            records.append(rec)
     return records
 
 
