@@ -186,7 +186,11 @@ def test_vmap_over_a_batch_equals_a_python_loop(mixture):
         for name in ("x", "v", "C", "F", "J"):
             a = np.asarray(getattr(ref, name))
             b = np.asarray(getattr(out, name))[i]
-            np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6 * max(np.abs(a).max(), 1.0),
+            # Batched and unbatched programs may round differently (XLA fuses them
+            # differently, and a multiply-add contracts in a vectorised loop body but not
+            # in its remainder): after 200 substeps of a cube splashing into water that
+            # is up to 6e-6 in C (measured). A batching error is O(C) itself.
+            np.testing.assert_allclose(b, a, rtol=1e-5, atol=2e-5 * max(np.abs(a).max(), 1.0),
                                        err_msg=f"vmap vs loop, scene {i}: {name}")
         assert bool(out.finite[i]) == bool(ref.finite) and \
             bool(out.escaped[i]) == bool(ref.escaped), f"flags differ for scene {i}"

@@ -57,6 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _transfer
 from . import colliders as col
 from ._pytree import pytree_dataclass
 from .materials import Material, MaterialParams
@@ -66,23 +67,7 @@ from .scan import checkpointed_scan
 CFL = 0.5
 #: Newton iterations of the polar decomposition used by the fixed-corotated model.
 POLAR_ITERS = 6
-_BLOCK_SCATTER = jax.lax.ScatterDimensionNumbers(
-    update_window_dims=(1, 2, 3, 4), inserted_window_dims=(),
-    scatter_dims_to_operand_dims=(0, 1, 2))
-_BLOCK_GATHER = jax.lax.GatherDimensionNumbers(
-    offset_dims=(1, 2, 3, 4), collapsed_slice_dims=(), start_index_map=(0, 1, 2))
 WALL_MODES = ("slip", "sticky", "none")
-
-_OFFSETS = np.array([(i, j, k) for i in range(3) for j in range(3) for k in range(3)],
-                    np.int32)
-#: (27, 4) rows (1, ox, oy, oz) of the stencil offsets, for the G2P contraction.
-_REDUCE = np.concatenate([np.ones((27, 1)), _OFFSETS], axis=1)
-
-
-def _stencil_weights(w):
-    """(N, 27) quadratic B-spline weights from the per-axis weights ``w[offset][:, axis]``."""
-    return jnp.stack([w[oi][:, 0] * w[oj][:, 1] * w[ok][:, 2] for (oi, oj, ok) in _OFFSETS],
-                     axis=1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -484,9 +469,22 @@ def _cofactor(A):
              A[0][0] * A[1][1] - A[0][1] * A[1][0]]]
 
 
+@jax.custom_vjp
 def polar_rotation(F):
     """Rotation R of the polar decomposition F = R S, by Newton iteration
-    R <- (R + R^{-T}) / 2 (component-wise lists of (N,) arrays)."""
+    R <- (R + R^{-T}) / 2 (component-wise lists of (N,) arrays).
+
+    Reverse mode is the closed-form differential of the polar factor, not the derivative
+    of the iteration: with S = R^T F and a rotation R dR = R Omega, Omega skew with axial
+    vector omega, (tr(S) I - S) omega = axial(R^T dF - dF^T R). Its transpose gives
+    F_bar = R skew(c) with c = (tr(S) I - S)^{-1} b, b the axial vector of
+    R^T R_bar - R_bar^T R (:func:`_polar_vjp`).
+    Differentiating the six Newton steps instead cost most of an elastic substep's
+    gradient; the two agree to the iteration's convergence (tested)."""
+    return _polar_newton(F)
+
+
+def _polar_newton(F):
     R = F
     for _ in range(POLAR_ITERS):
         cof = _cofactor(R)
@@ -496,6 +494,33 @@ def polar_rotation(F):
         # its consumers and duplicates work.
         R = _unsoa(_soa(R))
     return R
+
+
+def _polar_fwd(F):
+    R = _polar_newton(F)
+    return R, (F, R)
+
+
+def _polar_vjp(res, R_bar):
+    F, R = res
+    Rt = _transpose(R)
+    S = _mul(Rt, F)
+    S = [[0.5 * (S[i][j] + S[j][i]) for j in range(3)] for i in range(3)]
+    B = _mul(Rt, R_bar)
+    b = [B[2][1] - B[1][2], B[0][2] - B[2][0], B[1][0] - B[0][1]]
+    tr = S[0][0] + S[1][1] + S[2][2]
+    K = [[(tr if i == j else 0.0) - S[i][j] for j in range(3)] for i in range(3)]
+    # K is symmetric with eigenvalues s_i + s_j > 0 (sums of two singular values of F):
+    # c = K^{-1} b through the cofactor matrix
+    cof = _cofactor(K)
+    det = _det(K)
+    det = jnp.where(jnp.abs(det) > 1e-30, det, 1e-30)
+    c = [(cof[0][i] * b[0] + cof[1][i] * b[1] + cof[2][i] * b[2]) / det for i in range(3)]
+    skew = [[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]]
+    return (_mul(R, skew),)
+
+
+polar_rotation.defvjp(_polar_fwd, _polar_vjp)
 
 
 def _window_origin(cfg: MPMConfig, x):
@@ -639,7 +664,6 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     inv_dx = 1.0 / dx
     dtype = state.x.dtype
     x, v = state.x, state.v
-    n = x.shape[0]
     Wx, Wy, Wz = cfg.window
 
     origin = _window_origin(cfg, x)
@@ -655,8 +679,9 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
             (dom_base < 0) | (dom_base > jnp.asarray(cfg.domain, jnp.int32) - 3))
     base = jnp.clip(base, 0, hi)
 
-    # quadratic B-spline weights per axis: w[o][:, a]
-    w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+    # quadratic B-spline weights per axis: w[:, o, a]
+    w = jnp.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2],
+                  axis=1)  # (N, offset, axis)
 
     Cm = _mat3(state.C)
     Hm = _mat3(state.H)
@@ -665,76 +690,81 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     k_stress = -dt * state.vol * 4.0 * inv_dx * inv_dx
     A = [[k_stress * tau[i][j] + m * Cm[i][j] for j in range(3)] for i in range(3)]
     # momentum at offset o: w_o (m v + A (o - fx) dx) = w_o (b + dx A o), b = m v - dx A fx
-    b = [m * v[:, i] - dx * (A[i][0] * fx[:, 0] + A[i][1] * fx[:, 1] + A[i][2] * fx[:, 2])
+    # Gravity's impulse enters here, as momentum m g dt per particle (the grid's nodes then
+    # hold p + m_i g dt), not as g dt added to the grid velocity after the division: that
+    # add contracted into a fused multiply-add in the vectorised part of the grid loop but
+    # not in its remainder, so a node's rounding depended on where it sat in the grid and
+    # the active window no longer reproduced the full grid bit for bit.
+    vg = [v[:, i] + dt * cfg.gravity[i] if cfg.gravity[i] else v[:, i] for i in range(3)]
+    b = [m * vg[i] - dx * (A[i][0] * fx[:, 0] + A[i][1] * fx[:, 1] + A[i][2] * fx[:, 2])
          for i in range(3)]
-    # Per-particle rows (b, A e_x, A e_y, A e_z, m). Passing them through a (13, 13) identity
-    # matmul materialises it: left elementwise, XLA fuses the stress computation into the
-    # 27-fold scatter input and recomputes it for every stencil node (measured 30-60x slower
-    # for the fixed-corotated model). The per-node values w_o (b + dx A o, m) stay fused.
-    rows = b + [A[c][a] for a in range(3) for c in range(3)] + [m]
-    if drive is not None:
-        rows = rows + [m * jnp.asarray(drive[0], dtype)]  # a 5th grid channel
-    nr = len(rows)
-    rows = list(jnp.eye(nr, dtype=dtype) @ jnp.stack(rows))
-    vals = []
-    for oi, oj, ok in _OFFSETS:
-        mom = [rows[c] + dx * (oi * rows[3 + c] + oj * rows[6 + c] + ok * rows[9 + c])
-               for c in range(3)]
-        wt = w[oi][:, 0] * w[oj][:, 1] * w[ok][:, 2]
-        vals.append(wt[:, None] * jnp.stack(mom + rows[12:], axis=-1))
-    nc = nr - 9
-    vals = jnp.stack(vals, axis=1).reshape(n, 3, 3, 3, nc)
-    # One windowed scatter-add of each particle's 3x3x3x4 block (about 2x faster on CPU than
-    # 27 N point scatters).
-    grid = jax.lax.scatter_add(
-        jnp.zeros((Wx, Wy, Wz, nc), dtype), base, vals, _BLOCK_SCATTER,
-        mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(-1, nc)
+    # Per-particle rows R (N, 4, nc) of the affine node values w_o (b + dx A o, m) (see
+    # _transfer): b (then the mass channels) and dx times the columns of A (zero in the
+    # mass channels). Passing their 12 or 13 distinct entries through an identity matmul
+    # materialises them: left elementwise, XLA fuses the stress computation into the
+    # 27-fold scatter input and recomputes it for every stencil node (measured 30-60x
+    # slower for the fixed-corotated model; an identity matmul on R's last axis is fused
+    # with its input on CPU and was as slow).
+    masses = [m] if drive is None else [m, m * jnp.asarray(drive[0], dtype)]  # 5th channel
+    entries = b + [dx * A[c][a] for a in range(3) for c in range(3)] + masses
+    entries = list(jnp.eye(len(entries), dtype=dtype) @ jnp.stack(entries))
+    b, dxA, masses = entries[:3], entries[3:12], entries[12:]
+    zeros = [jnp.zeros_like(m)] * len(masses)
+    R = jnp.stack([jnp.stack(b + masses, axis=-1)]
+                  + [jnp.stack(dxA[3 * a:3 * a + 3] + zeros, axis=-1) for a in range(3)],
+                  axis=1)
+    nc = R.shape[-1]
+    # one windowed scatter-add of each particle's 3x3x3 block (about 2x faster on CPU than
+    # 27 N point scatters)
+    grid = _transfer.spread(cfg.window, base, w, R).reshape(-1, nc)
 
-    # grid update
+    # grid update, on all four channels (momentum, mass): a (M, 3) velocity padded to four
+    # channels for the aligned G2P gather made the pad the root of the grid update's fused
+    # loop, which then ran several times slower. The fourth channel ends up m / m (1 or 0)
+    # and is never read.
     gm = grid[:, 3]
     has_mass = gm > 0.0
-    gv_exact = grid[:, :3] / jnp.where(has_mass, gm, 1.0)[:, None]
+    gv_exact = grid[:, :4] / jnp.where(has_mass, gm, 1.0)[:, None]
     # A node touched only by the far tail of the B-spline weights can hold a vanishing mass
     # (1e-30 kg). Dividing by it is fine forward, but its reverse-mode derivative (-p / m^2)
     # overflows float32 to inf and then NaN (seen on Push-Rope: NaN action gradients at
     # 160+ substeps). Below a millionth of the lightest particle's mass the velocity keeps
     # its exact forward value but passes no gradient (such a node moves nothing).
     heavy = gm > 1e-6 * jax.lax.stop_gradient(jnp.min(m))
-    gv_heavy = grid[:, :3] / jnp.where(heavy, gm, 1.0)[:, None]
+    gv_heavy = grid[:, :4] / jnp.where(heavy, gm, 1.0)[:, None]
     gv = jnp.where(heavy[:, None], gv_heavy,
                    jnp.where(has_mass[:, None], jax.lax.stop_gradient(gv_exact), 0.0))
-    gv = gv + dt * jnp.asarray(cfg.gravity, dtype)
-    if drive is not None:
-        gv = _drive_grid(gv, grid[:, 4], gm, jnp.asarray(drive[1], dtype), heavy)
-    node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
+    if drive is not None or cfg.colliders:
+        gv3 = gv[:, :3]
+        if drive is not None:
+            gv3 = _drive_grid(gv3, grid[:, 4], gm, jnp.asarray(drive[1], dtype), heavy)
+        if cfg.colliders:
+            gv3 = col.apply_colliders_grid(cfg.colliders, state.colliders, gv3, dx,
+                                           cfg.window, origin, params.friction)
+        gv = jnp.concatenate([gv3, gv[:, 3:]], axis=1)
     if cfg.walls != "none":
-        # nodes on or beyond the wall surfaces (see the module docstring)
-        lo_wall = node <= cfg.wall_cells
-        hi_wall = node >= jnp.asarray(cfg.domain, jnp.int32) - cfg.wall_cells
+        # nodes on or beyond the wall surfaces (see the module docstring); the mass
+        # channel's column is never a wall
+        node = jnp.asarray(np.indices(cfg.window).reshape(3, -1).T, jnp.int32) + origin
+        lo_wall = jnp.pad(node <= cfg.wall_cells, ((0, 0), (0, 1)))
+        hi_wall = jnp.pad(node >= jnp.asarray(cfg.domain, jnp.int32) - cfg.wall_cells,
+                          ((0, 0), (0, 1)))
         if cfg.walls == "sticky":
             gv = jnp.where(jnp.any(lo_wall | hi_wall, axis=1, keepdims=True), 0.0, gv)
         else:
             gv = jnp.where((lo_wall & (gv < 0)) | (hi_wall & (gv > 0)), 0.0, gv)
-    if cfg.colliders:
-        gv = col.apply_colliders_grid(cfg.colliders, state.colliders, gv, dx, cfg.window,
-                                      origin, params.friction)
     gv = jnp.where(has_mass[:, None], gv, 0.0)
 
-    # G2P: gather each particle's 3x3x3 block (padded to 4 channels: aligned rows gather
-    # faster).
+    # G2P: gather each particle's 3x3x3 block of the four channels (aligned rows gather
+    # faster than three).
     # The identity matmul materialises the updated grid; otherwise XLA fuses the whole grid
     # update (division, walls, colliders) into the gather and redoes it for every one of
     # the 27 reads per particle (measured: a third of the substep time).
-    gv4 = jnp.concatenate([gv, jnp.zeros_like(gm)[:, None]], axis=1) @ jnp.eye(4, dtype=dtype)
-    gv4 = gv4.reshape(Wx, Wy, Wz, 4)
-    g = jax.lax.gather(gv4, base, _BLOCK_GATHER, (3, 3, 3, 4),
-                       mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS).reshape(n, 27, 4)
-    # All 27-node reductions as one contraction: S[n, c, d] = sum_o w_o g_oc (1, o)_d gives
-    # the velocity (d = 0) and sum_o w_o g_o o^T (d = 1..3) in a single pass.
-    wg = _stencil_weights(w)[:, :, None] * g
-    S = jnp.einsum("noc,od->ncd", wg, jnp.asarray(_REDUCE, dtype))
-    new_v = [S[:, c, 0] for c in range(3)]
-    new_C = [[4.0 * inv_dx * (S[:, i, 1 + j] - new_v[i] * fx[:, j]) for j in range(3)]
+    # (lax.optimization_barrier does not stop that fusion on CPU.)
+    gv4 = (gv @ jnp.eye(4, dtype=dtype)).reshape(Wx, Wy, Wz, 4)
+    S = _transfer.collect(gv4, base, w)
+    new_v = [S[:, 0, c] for c in range(3)]
+    new_C = [[4.0 * inv_dx * (S[:, 1 + j, i] - new_v[i] * fx[:, j]) for j in range(3)]
              for i in range(3)]
     new_v_arr = jnp.stack(new_v, axis=-1)
     new_x = x + dt * new_v_arr
