@@ -58,9 +58,14 @@ def test_env_batch_is_split_over_the_four_devices(runs):
     assert not runs[1][1]["env"]["rollout_communicates"]
 
 
-def test_sharded_env_reset_and_step_equal_one_device_bit_for_bit(runs):
-    for key in ("env_obs", "env_step_obs", "env_step_reward", "env_vertices"):
+def test_sharded_env_state_equals_one_device_bit_for_bit_and_reward_to_rounding(runs):
+    for key in ("env_obs", "env_step_obs", "env_vertices"):
         chex.assert_trees_all_equal(runs[4][0][key], runs[1][0][key])
+    # The reward lines the goal up with the cloth first (issue 16): its reductions over the
+    # vertices round differently when XLA compiles 2 environments per device instead of 8
+    # (measured: 1 ulp in 4 of 8 rewards); the state it is computed from is bit-identical.
+    chex.assert_trees_all_close(runs[4][0]["env_step_reward"], runs[1][0]["env_step_reward"],
+                                rtol=4e-7, atol=0.0)
 
 
 def test_sharded_rollout_and_gradient_equal_one_device_within_float_rounding(runs):
