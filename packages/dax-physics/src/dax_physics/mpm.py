@@ -734,14 +734,12 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     gv_heavy = grid[:, :4] / jnp.where(heavy, gm, 1.0)[:, None]
     gv = jnp.where(heavy[:, None], gv_heavy,
                    jnp.where(has_mass[:, None], jax.lax.stop_gradient(gv_exact), 0.0))
-    if drive is not None or cfg.colliders:
-        gv3 = gv[:, :3]
-        if drive is not None:
-            gv3 = _drive_grid(gv3, grid[:, 4], gm, jnp.asarray(drive[1], dtype), heavy)
-        if cfg.colliders:
-            gv3 = col.apply_colliders_grid(cfg.colliders, state.colliders, gv3, dx,
-                                           cfg.window, origin, params.friction)
-        gv = jnp.concatenate([gv3, gv[:, 3:]], axis=1)
+    # drive, walls, colliders, in this order (the drive and the colliders act on the
+    # three velocity channels)
+    if drive is not None:
+        gv = jnp.concatenate([_drive_grid(gv[:, :3], grid[:, 4], gm,
+                                          jnp.asarray(drive[1], dtype), heavy), gv[:, 3:]],
+                             axis=1)
     if cfg.walls != "none":
         # nodes on or beyond the wall surfaces (see the module docstring); the mass
         # channel's column is never a wall
@@ -753,6 +751,10 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
             gv = jnp.where(jnp.any(lo_wall | hi_wall, axis=1, keepdims=True), 0.0, gv)
         else:
             gv = jnp.where((lo_wall & (gv < 0)) | (hi_wall & (gv > 0)), 0.0, gv)
+    if cfg.colliders:
+        gv = jnp.concatenate([col.apply_colliders_grid(
+            cfg.colliders, state.colliders, gv[:, :3], dx, cfg.window, origin,
+            params.friction), gv[:, 3:]], axis=1)
     gv = jnp.where(has_mass[:, None], gv, 0.0)
 
     # G2P: gather each particle's 3x3x3 block of the four channels (aligned rows gather
