@@ -73,7 +73,8 @@ def _moments_sums(G, W):
 
 
 def _moments(G, W):
-    """(N, 4, C): ``sum_o W_o e_o[d] G_o`` as one plain matmul (N, 27 C) @ (27 C, 4 C)
+    """(N, 4, C): ``sum_o W_o e_o[d] G_o`` in :func:`spread`'s reverse pass, as one plain
+    matmul (N, 27 C) @ (27 C, 4 C)
     with the Kronecker product of the moment matrix E (27, 4) and the identity over
     channels: no transposed operand, one read of the block, and a materialised result
     (written as sums, each of the 16 moments re-read the block in its own fused loop)."""
