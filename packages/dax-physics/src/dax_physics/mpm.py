@@ -700,7 +700,7 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
          for i in range(3)]
     # Per-particle rows R (N, 4, nc) of the affine node values w_o (b + dx A o, m) (see
     # _transfer): b (then the mass channels) and dx times the columns of A (zero in the
-    # mass channels). Passing their 12 or 13 distinct entries through an identity matmul
+    # mass channels). Passing their 13 (14 with a drive) distinct entries through an identity matmul
     # materialises them: left elementwise, XLA fuses the stress computation into the
     # 27-fold scatter input and recomputes it for every stencil node (measured 30-60x
     # slower for the fixed-corotated model; an identity matmul on R's last axis is fused
