@@ -759,11 +759,10 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
 
     # G2P: gather each particle's 3x3x3 block of the four channels (aligned rows gather
     # faster than three).
-    # The identity matmul materialises the updated grid; otherwise XLA fuses the whole grid
-    # update (division, walls, colliders) into the gather and redoes it for every one of
-    # the 27 reads per particle (measured: a third of the substep time).
-    # (lax.optimization_barrier does not stop that fusion on CPU.)
-    gv4 = (gv @ jnp.eye(4, dtype=dtype)).reshape(Wx, Wy, Wz, 4)
+    # Materialised: otherwise XLA fuses the whole grid update (division, walls, colliders)
+    # into the gather and redoes it for every one of the 27 reads per particle (measured:
+    # a third of the substep time).
+    gv4 = _transfer.materialise(gv.reshape(Wx, Wy, Wz, 4))
     S = _transfer.collect(gv4, base, w)
     new_v = [S[:, 0, c] for c in range(3)]
     new_C = [[4.0 * inv_dx * (S[:, 1 + j, i] - new_v[i] * fx[:, j]) for j in range(3)]
