@@ -53,6 +53,11 @@ MODES = ("sticky", "slip", "separate")
 _EPS = 1e-12
 
 
+def _mm(a, b):
+    """``a @ b`` at full float32 precision (no TF32 rounding on GPUs)."""
+    return jnp.matmul(a, b, precision=jax.lax.Precision.HIGHEST)
+
+
 @dataclasses.dataclass(frozen=True)
 class ColliderSpec:
     """Static description of one kinematic collider.
@@ -206,13 +211,13 @@ def sdf(spec: ColliderSpec, pos, quat, x):
     The normal is the SDF's gradient (reverse mode over all points at once: each point's
     distance depends on that point only)."""
     R = quat_to_matrix(quat)
-    pt = R.T @ (x.reshape(-1, 3) - pos).T  # (3, M) local coordinates, one row per axis
+    pt = _mm(R.T, (x.reshape(-1, 3) - pos).T)  # (3, M) local coordinates, one row per axis
     if spec.shape == "plane":
         phi, grad = pt[2], jnp.zeros_like(pt).at[2].set(1.0)
     else:
         phi, back = jax.vjp(lambda q: _local_sdf_c(spec, q[0], q[1], q[2]), pt)
         (grad,) = back(jnp.ones_like(phi))
-    n = R @ grad
+    n = _mm(R, grad)
     n = (n / jnp.sqrt(jnp.sum(n * n, axis=0) + _EPS)).T
     return phi.reshape(x.shape[:-1]), n.reshape(x.shape)
 
@@ -326,7 +331,7 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
             cube = tuple(min(2 * half + 1, w) for w in window)
             if 2 * math.prod(cube) <= math.prod(window):  # else not worth the slicing
                 R = quat_to_matrix(state.quat[k])
-                centre = state.pos[k] + R @ jnp.asarray(bound[0], v.dtype)
+                centre = state.pos[k] + _mm(R, jnp.asarray(bound[0], v.dtype))
                 cell = jnp.floor(jax.lax.stop_gradient(centre) / dx).astype(jnp.int32)
                 side = cube
                 start = jnp.clip(cell - half - origin, 0,

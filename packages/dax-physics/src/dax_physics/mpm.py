@@ -707,7 +707,8 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     # with its input on CPU and was as slow).
     masses = [m] if drive is None else [m, m * jnp.asarray(drive[0], dtype)]  # 5th channel
     entries = b + [dx * A[c][a] for a in range(3) for c in range(3)] + masses
-    entries = list(jnp.eye(len(entries), dtype=dtype) @ jnp.stack(entries))
+    entries = list(jnp.matmul(jnp.eye(len(entries), dtype=dtype), jnp.stack(entries),
+                              precision=_transfer.HIGHEST))
     b, dxA, masses = entries[:3], entries[3:12], entries[12:]
     zeros = [jnp.zeros_like(m)] * len(masses)
     R = jnp.stack([jnp.stack(b + masses, axis=-1)]
@@ -808,7 +809,8 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     if cfg.colliders:
         k = jnp.maximum(held, 0)
         Rk = jax.vmap(col.quat_to_matrix)(cstate.quat)[k]
-        hx = cstate.pos[k] + jnp.einsum("nij,nj->ni", Rk, state.held_offset)
+        hx = cstate.pos[k] + jnp.einsum("nij,nj->ni", Rk, state.held_offset,
+                                            precision=_transfer.HIGHEST)
         hv = cstate.lin_vel[k] + jnp.cross(cstate.ang_vel[k], hx - cstate.pos[k])
         is_held = (held >= 0)[:, None]
         new_x = jnp.where(is_held, hx, new_x)
@@ -858,7 +860,7 @@ def grasp(cfg: MPMConfig, state: MPMState, index: int, radius: float) -> MPMStat
     phi, _ = col.sdf(spec, cs.pos[index], cs.quat[index], state.x)
     take = (phi < radius) & (state.held < 0)
     R = col.quat_to_matrix(cs.quat[index])
-    local = (state.x - cs.pos[index]) @ R
+    local = jnp.matmul(state.x - cs.pos[index], R, precision=_transfer.HIGHEST)
     return state.replace(held=jnp.where(take, index, state.held),
                          held_offset=jnp.where(take[:, None], local, state.held_offset))
 

@@ -697,7 +697,7 @@ def energy(cfg: ClothConfig, cloth: Cloth, state: ClothState):
     spring potential (self-collision springs excluded)."""
     x, v = state.x, state.v
     ke = 0.5 * jnp.sum(cloth.mass * jnp.sum(v * v, -1))
-    pe_g = -jnp.sum(cloth.mass * (x @ jnp.asarray(cfg.gravity, x.dtype)))
+    pe_g = -jnp.sum(cloth.mass * jnp.sum(x * jnp.asarray(cfg.gravity, x.dtype), -1))
     d = x[cloth.pairs[:, 1]] - x[cloth.pairs[:, 0]]
     pe_s = 0.5 * jnp.sum(cloth.stiffness * (_safe_norm(d) - cloth.rest_length) ** 2)
     return ke + pe_g + pe_s
