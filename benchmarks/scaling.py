@@ -15,7 +15,8 @@ Each device count runs in its own process (the count is fixed when JAX starts:
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` on CPU; on a machine with N GPUs
 pass ``--platform gpu``, and the devices are real). Per count: the compile time (lowering
 and compiling, apart), the median of ``--reps`` timed calls, the process's peak resident
-memory and XLA's planned memory per device (arguments, outputs, temporaries), and the
+memory, the accelerator's peak allocated memory per device (GPU only), and XLA's planned
+memory per device (arguments, outputs, temporaries), and the
 summed reward and gradient norm (the same on every count, a check that the runs did the
 same work), and the machine's 1-minute load average before and after (other jobs on the
 cores slow the timings). One JSON document to stdout and to ``--out``.
@@ -67,6 +68,7 @@ def child(args) -> dict:
         "run_s_median": round(run_s, 3), "run_s_all": [round(t, 3) for t in times],
         "env_steps_per_s": round(args.rollouts * args.steps / run_s, 1),
         "peak_rss_mib": round(peak_rss_mb(), 1),
+        "device_peak_mib": device_peak_mib(),
         "xla_bytes_per_device": None if mem is None else {
             "arguments": mem.argument_size_in_bytes, "outputs": mem.output_size_in_bytes,
             "temporaries": mem.temp_size_in_bytes},
@@ -74,6 +76,17 @@ def child(args) -> dict:
         "return": float(out["return"]), "grad_norm": float(np.linalg.norm(grad)),
         "grad_finite": bool(np.all(np.isfinite(grad))),
     }
+
+
+def device_peak_mib():
+    """The accelerator's peak allocated memory per device [MiB] (``memory_stats``; GPUs
+    report it, the CPU backend reports nothing: then None, and ``peak_rss_mib`` counts)."""
+    import jax
+
+    stats = [d.memory_stats() for d in jax.local_devices()]
+    if not all(s and "peak_bytes_in_use" in s for s in stats):
+        return None
+    return [round(s["peak_bytes_in_use"] / 2 ** 20, 1) for s in stats]
 
 
 def run_child(args, devices: int) -> dict:
