@@ -38,7 +38,8 @@ differ between rungs, so the comparison is at resolution-independent points:
 Per env step t = 1..T the error ``e_t`` is the mean distance [m] between a rung's points
 and the fine rung's (Chamfer for the liquids); the JSON has ``e_t`` for every step, its
 mean (``error_mean``, the figure on the chart and in the README) and maximum
-(``error_max``), the final ``r_gt`` of each rung and its difference to the fine rung's
+(``error_max``; for material points also ``error_z_mean``, the mean of the vertical
+component alone), the final ``r_gt`` of each rung and its difference to the fine rung's
 (``score_diff``: the task's own score, each rung against the goal its own resolution
 makes), and the CPU time (``step_cpu_s``, the process's time, steadier on a shared
 machine) and wall time (``step_wall_s``) per env step: medians over the episode's steps
@@ -57,6 +58,7 @@ import sys
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from dax_physics.tools.timing import timed_compile
@@ -67,6 +69,8 @@ from ..registry import TASKS, env_class, get_spec, make
 ROPE_KERNEL = 0.02
 #: Centre-line points of a rope.
 ROPE_POINTS = 25
+#: The chaos floor's start perturbation [m] (see :func:`study`).
+FLOOR_SHIFT = 1e-5
 #: Fraction of the largest stable substep (the bound each task checks itself; the cloth's
 #: already holds a safety factor of 0.9, the MPM's a CFL number of 0.5) a rung may use.
 DT_SAFETY = 1.0
@@ -157,18 +161,30 @@ class CloudProbe:
         return x
 
 
-def chamfer(a, b, chunk: int = 1024) -> float:
+def chamfer(a, b, chunk: int = 2048) -> float:
     """Symmetric Chamfer distance [m] of point sets ``a`` (N, 3) and ``b`` (M, 3): the mean
-    of ``mean_i min_j |a_i - b_j|`` and ``mean_j min_i |a_i - b_j|`` (NumPy)."""
+    of ``mean_i min_j |a_i - b_j|`` and ``mean_j min_i |a_i - b_j|`` (NumPy). The nearest
+    neighbours are found with a matrix product and their distances then computed directly,
+    so identical sets are at exactly 0."""
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
-    min_ab = np.full(len(a), np.inf)
-    min_ba = np.full(len(b), np.inf)
+    centre = a.mean(0)
+    a, b = a - centre, b - centre
+    bb = np.sum(b * b, 1)
+    near_ab = np.empty(len(a), np.int64)
+    best_ba = np.full(len(b), np.inf)
+    near_ba = np.zeros(len(b), np.int64)
     for i in range(0, len(a), chunk):
-        d2 = np.sum((a[i:i + chunk, None, :] - b[None]) ** 2, -1)
-        min_ab[i:i + chunk] = d2.min(1)
-        min_ba = np.minimum(min_ba, d2.min(0))
-    return float(0.5 * (np.sqrt(min_ab).mean() + np.sqrt(min_ba).mean()))
+        blk = a[i:i + chunk]
+        d2 = np.sum(blk * blk, 1)[:, None] + bb[None] - 2.0 * blk @ b.T
+        near_ab[i:i + chunk] = d2.argmin(1)
+        j = d2.argmin(0)
+        better = d2[j, np.arange(len(b))] < best_ba
+        best_ba = np.where(better, d2[j, np.arange(len(b))], best_ba)
+        near_ba = np.where(better, i + j, near_ba)
+    d_ab = np.linalg.norm(a - b[near_ab], axis=1)
+    d_ba = np.linalg.norm(b - a[near_ba], axis=1)
+    return float(0.5 * (d_ab.mean() + d_ba.mean()))
 
 
 def point_error(kind: str, a, b) -> float:
@@ -339,10 +355,12 @@ def ladder(name: str) -> list:
 # ----------------------------------------------------------------------------- running
 
 def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
-             log=None) -> dict:
+             log=None, perturb: float = 0.0) -> dict:
     """The expert's closed-loop episode of ``name`` at ``rung`` from ``PRNGKey(seed)``:
     the probe's points at t = 0..T, ``r_gt`` and ``D`` per step, CPU and wall time per env
-    step (medians over the steps, after an ahead-of-time compile)."""
+    step (medians over the steps, after an ahead-of-time compile). ``perturb`` [m] moves
+    the object's particles or vertices (not the tools) by that much along x at the start
+    (the chaos floor, see :func:`study`)."""
     t_build = time.perf_counter()
     env = make(name, **rung.overrides)
     build_s = time.perf_counter() - t_build
@@ -352,6 +370,10 @@ def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     _, state = jax.jit(env.reset)(jax.random.PRNGKey(seed), params)
+    if perturb:
+        x = state.physics.x
+        state = state.replace(physics=state.physics.replace(
+            x=x + jnp.asarray([perturb, 0.0, 0.0], x.dtype)))
     expert, c_expert = timed_compile(jax.jit(env.expert_action), state, params)
     action = expert(state, params)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
@@ -416,6 +438,9 @@ def compare(name: str, records: list) -> list:
         rec.update(error_t0=err[0], error=err[1:], error_mean=float(np.mean(err[1:])),
                    error_max=float(np.max(err[1:])),
                    score_diff=rec["final_r_gt"] - fine["final_r_gt"])
+        if kind != "cloud":  # the vertical part: how much of it is the layers' heights
+            rec["error_z_mean"] = float(np.mean([np.mean(np.abs(
+                np.asarray(pts[t])[:, 2] - np.asarray(ref[t])[:, 2])) for t in range(1, n)]))
         out.append(rec)
     return out
 
@@ -456,9 +481,17 @@ def verdict(records: list, time_key: str = "step_cpu_s") -> dict:
 
 
 def study(name: str, rungs: list | None = None, seed: int = 0, steps: int | None = None,
-          log=None) -> dict:
+          log=None, floor: float = FLOOR_SHIFT) -> dict:
     """Run every rung (default :func:`ladder`) and compare them (see the module docstring);
-    the JSON-able result."""
+    the JSON-able result.
+
+    ``floor`` [m] (0: skipped): the default rung (else the first) is run a second time
+    with its object moved by ``floor`` along x at the start, and compared with its own
+    unmoved run (``chaos_floor``: error and score difference). A perturbation of 10 µm
+    is physics that is the same up to rounding; what it grows into over the episode is the
+    part of a rung's error that no resolution removes (the folds of stacked cloth layers
+    and the splashes of a pour are chaotic), so differences between rungs below it say
+    nothing about the resolution."""
     rungs = ladder(name) if rungs is None else list(rungs)
     if not rungs:
         raise ValueError("a study needs at least one rung")
@@ -467,10 +500,23 @@ def study(name: str, rungs: list | None = None, seed: int = 0, steps: int | None
         if log:
             log(f"[resolution] {name}: {rung.label}")
         records.append(run_rung(name, rung, seed, steps, log))
+    chaos = None
+    if floor:
+        k = next((i for i, r in enumerate(rungs) if r.is_default), 0)
+        base = dataclasses.replace(rungs[k], label=rungs[k].label + f" moved {floor:g} m",
+                                   is_default=False, is_fine=True)
+        if log:
+            log(f"[resolution] {name}: {base.label} (chaos floor)")
+        moved = run_rung(name, base, seed, steps, log, perturb=floor)
+        pair = compare(name, [{**records[k], "is_fine": False}, moved])
+        chaos = {"rung": rungs[k].label, "shift_m": floor,
+                 **{key: pair[0][key] for key in ("error", "error_t0", "error_mean",
+                                                  "error_max", "score_diff")}}
     records = compare(name, records)
     return {"bench": "resolution", "task": name, "seed": seed, "steps": records[0]["steps"],
             "probe": PROBE_KINDS[name], "error_unit": "m",
             "time_key": "step_cpu_s", "rungs": records, **verdict(records),
+            "chaos_floor": chaos,
             "device": str(jax.devices()[0]), "load_average": list(os.getloadavg())}
 
 
@@ -501,6 +547,10 @@ def chart(result: dict, path: str) -> bool:
         if r["is_default"]:
             ax.scatter([t[k]], [e[k]], s=160, facecolors="none", edgecolors="tab:red",
                        zorder=4, label="default")
+    chaos = result.get("chaos_floor")
+    if chaos:
+        ax.axhline(1e3 * chaos["error_mean"], color="tab:gray", ls=":", lw=0.9,
+                   label=f"chaos floor (default, start moved {1e6 * chaos['shift_m']:g} µm)")
     ax.set_xscale("log")
     ax.set_xlabel("CPU time per env step [s]")
     what = {"cloud": "Chamfer", "centreline": "centre-line point",
@@ -524,6 +574,9 @@ def main(argv=None) -> dict:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=None,
                    help="env steps per episode (default: the task's horizon)")
+    p.add_argument("--floor", type=float, default=FLOOR_SHIFT,
+                   help="start perturbation [m] of the chaos-floor run of the default "
+                        "(0: no such run)")
     p.add_argument("--prefix", default="resolution-",
                    help="file name prefix: DIR/<prefix><task>.json and .png")
     args = p.parse_args(argv)
@@ -536,7 +589,7 @@ def main(argv=None) -> dict:
         raise SystemExit(2)
     os.makedirs(args.out, exist_ok=True)
     result = study(args.task, seed=args.seed, steps=args.steps,
-                   log=lambda m: print(m, file=sys.stderr, flush=True))
+                   log=lambda m: print(m, file=sys.stderr, flush=True), floor=args.floor)
     base = os.path.join(args.out, f"{args.prefix}{args.task}")
     with open(base + ".json", "w") as f:
         json.dump(result, f, indent=1)
@@ -544,6 +597,8 @@ def main(argv=None) -> dict:
     summary = {k: result[k] for k in ("task", "default_on_front", "default_error_mean_m",
                                       "default_error_max_m", "default_score_diff")
                if k in result}
+    if result.get("chaos_floor"):
+        summary["chaos_floor_error_mean"] = result["chaos_floor"]["error_mean"]
     summary["rungs"] = [{k: r[k] for k in ("label", "step_cpu_s", "error_mean", "error_max",
                                             "final_r_gt", "score_diff")}
                         for r in result["rungs"]]
