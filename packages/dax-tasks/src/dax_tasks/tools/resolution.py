@@ -32,8 +32,11 @@ differ between rungs, so the comparison is at resolution-independent points:
   (it mixes), so the particle clouds are compared as sets: the symmetric Chamfer distance
   ``(mean_i min_j |a_i - b_j| + mean_j min_i |a_i - b_j|) / 2`` [m], with heights measured
   from each rung's table (its floor is ``3 dx`` high, so a finer grid lowers the table by
-  1.5 cm; the bowls stand on it). Two samplings of the same liquid are not at Chamfer 0:
-  its value at t = 0 (``error_t0``) is that floor.
+  1.5 cm; the bowls stand on it, and the ladder lowers the wrist's start, workspace and
+  pour point with it, so every rung is the same scene relative to the table). The task's
+  own ``D`` (mean distance to the target cavity, resolution-independent but for its
+  ``dx/2`` wall tolerance) is compared too: ``distance_diff_mean``. Two samplings of the
+  same liquid are not at Chamfer 0: its value at t = 0 (``error_t0``) is that floor.
 
 Per env step t = 1..T the error ``e_t`` is the mean distance [m] between a rung's points
 and the fine rung's (Chamfer for the liquids); the JSON has ``e_t`` for every step, its
@@ -41,9 +44,10 @@ mean (``error_mean``, the figure on the chart and in the README) and maximum
 (``error_max``; for material points also ``error_z_mean``, the mean of the vertical
 component alone), the final ``r_gt`` of each rung and its difference to the fine rung's
 (``score_diff``: the task's own score, each rung against the goal its own resolution
-makes), and the CPU time (``step_cpu_s``, the process's time, steadier on a shared
-machine) and wall time (``step_wall_s``) per env step: medians over the episode's steps
-after an ahead-of-time compile. A rung is on the Pareto front when no other rung is at
+makes), the mean over the steps of ``|D - D_fine|`` (``distance_diff_mean`` [m]), and
+the CPU time (``step_cpu_s``, the process's time, steadier on a shared machine) and wall
+time (``step_wall_s``) per env step: medians over the episode's steps after an
+ahead-of-time compile. A rung is on the Pareto front when no other rung is at
 once no slower and no less accurate, and better in one of the two.
 """
 
@@ -273,6 +277,20 @@ def _mpm_rung(name, label, note, dx=None, ppc=None, window=None, domain=None,
     if hasattr(scene, "lift_substeps"):  # Push-Rope: the lift keeps its share of the step
         changes["lift_substeps"] = round(scene.lift_substeps * substeps / spec.substeps)
     new = dataclasses.replace(scene, **changes)
+    if hasattr(scene, "floor_z") and new.floor_z != scene.floor_z:
+        # The pour tasks' table is the floor wall's surface, 3 cells high: on a finer grid
+        # it is lower. Everything placed in absolute heights (the wrist's start, its
+        # workspace, the expert's pour point) moves with it, so the scene is the same
+        # relative to the table (the bowls stand on it already).
+        dz = new.floor_z - scene.floor_z
+
+        def lower(v, k=2):
+            return tuple(c + dz if i == k else c for i, c in enumerate(v))
+
+        new = dataclasses.replace(new, source_wrist=lower(scene.source_wrist),
+                                  wrist_low=lower(scene.wrist_low),
+                                  wrist_high=lower(scene.wrist_high),
+                                  pour_offset=lower(scene.pour_offset))
     return Rung(label, dx, {"substeps": substeps, "scene": new}, note,
                 is_default=new == scene and substeps == spec.substeps, is_fine=fine)
 
@@ -437,7 +455,9 @@ def compare(name: str, records: list) -> list:
         rec = {k: v for k, v in rec.items() if k != "_points"}
         rec.update(error_t0=err[0], error=err[1:], error_mean=float(np.mean(err[1:])),
                    error_max=float(np.max(err[1:])),
-                   score_diff=rec["final_r_gt"] - fine["final_r_gt"])
+                   score_diff=rec["final_r_gt"] - fine["final_r_gt"],
+                   distance_diff_mean=float(np.mean(np.abs(
+                       np.asarray(rec["distance"][:n - 1]) - fine["distance"][:n - 1]))))
         if kind != "cloud":  # the vertical part: how much of it is the layers' heights
             rec["error_z_mean"] = float(np.mean([np.mean(np.abs(
                 np.asarray(pts[t])[:, 2] - np.asarray(ref[t])[:, 2])) for t in range(1, n)]))
