@@ -109,6 +109,11 @@ def test_tiny_study_runs_with_zero_error_only_at_the_reference(tmp_path):
     assert coarse["error_max"] >= coarse["error_mean"]
     assert 1 in res.pareto(out["rungs"])  # the reference (error 0) is on the front
     assert out["default_on_front"] is None  # neither rung is the task's default
+    # the chaos floor reruns the first rung from a start moved 10 um along x
+    chaos = out["chaos_floor"]
+    assert chaos["rung"] == "5 x 5" and chaos["shift_m"] == res.FLOOR_SHIFT
+    assert chaos["error_t0"] == pytest.approx(res.FLOOR_SHIFT, rel=1e-2), chaos["error_t0"]
+    assert all(math.isfinite(e) for e in chaos["error"])
 
 
 def test_bench_resolution_subcommand_refuses_an_unknown_task(capsys, tmp_path):

@@ -547,6 +547,7 @@ def chart(result: dict, path: str) -> bool:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        import matplotlib.ticker
     except ImportError:
         return False
     recs = result["rungs"]
@@ -572,6 +573,9 @@ def chart(result: dict, path: str) -> bool:
         ax.axhline(1e3 * chaos["error_mean"], color="tab:gray", ls=":", lw=0.9,
                    label=f"chaos floor (default, start moved {1e6 * chaos['shift_m']:g} µm)")
     ax.set_xscale("log")
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    lo, hi = min(t), max(t)
+    ax.set_xlim(lo / 1.5, hi * 4.0)  # room for the labels on the right
     ax.set_xlabel("CPU time per env step [s]")
     what = {"cloud": "Chamfer", "centreline": "centre-line point",
             "mesh": "material point"}[result["probe"]]
