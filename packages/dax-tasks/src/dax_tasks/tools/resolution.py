@@ -563,8 +563,8 @@ def chart(result: dict, path: str) -> bool:
     ft = sorted(front, key=lambda k: t[k])
     ax.plot([t[k] for k in ft], [e[k] for k in ft], "k--", lw=0.9, label="Pareto front")
     for k, r in enumerate(recs):
-        ax.annotate(r["label"], (t[k], e[k]), fontsize=7, xytext=(4, 4),
-                    textcoords="offset points")
+        ax.annotate(r["label"], (t[k], e[k]), fontsize=7,  # staggered: rungs may be close
+                    xytext=(4, (-10, 4, -22, 16)[k % 4]), textcoords="offset points")
         if r["is_default"]:
             ax.scatter([t[k]], [e[k]], s=160, facecolors="none", edgecolors="tab:red",
                        zorder=4, label="default")
