@@ -6,6 +6,11 @@ stdout (``--json``); progress on stderr. Speed is measured here, never asserted 
     python -m dax_tasks.tools.bench --json                         # all tasks, batch 1 and 8
     python -m dax_tasks.tools.bench --json --tasks fold_cloth1 --batch 1 --reps 5
     python -m dax_tasks.tools.bench --json --resolution default,reference --batch 1
+    python -m dax_tasks.tools.bench resolution --task fold_cloth1 --out DIR
+
+The ``resolution`` subcommand is the speed-versus-accuracy study of one task
+(:mod:`dax_tasks.tools.resolution`): the expert's episode on a ladder of resolutions,
+each compared with a fine reference, one chart and one JSON per task.
 
 ``--resolution reference`` builds each task at the original DaXBench benchmark's particle
 or vertex count and substeps per step (``dax_tasks.make(name, resolution="reference")``),
@@ -173,6 +178,11 @@ def parse_tasks(text: str) -> list:
 
 
 def main(argv=None, overrides: dict | None = None) -> list:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["resolution"]:  # the speed-versus-accuracy study of one task
+        from .resolution import main as resolution_main
+
+        return resolution_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         names = parse_tasks(args.tasks)
