@@ -84,9 +84,9 @@ and the goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at
 D = 12 cm. Seeds 0-19, ``dax-bench run --tasks whip_rope --methods random,expert
 --seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.344 +- 0.030, expert
 0.927 +- 0.011 (with offsets up to 2 cm and the expert tracking at half its error,
-uncapped: 0.363 +- 0.024 and 0.934 +- 0.013). Quick-budget CEM-MPC, measured with the
-2 cm starts: 0.456 +- 0.013 (its one-step plans drag the held end towards the goal's and
-leave the rope unflipped: D 6-14 cm).
+uncapped: 0.363 +- 0.024 and 0.934 +- 0.013). Quick-budget CEM-MPC (``--methods
+cem_mpc``): 0.455 +- 0.011 (0.456 +- 0.013 with the 2 cm starts; its one-step plans drag
+the held end towards the goal's and leave the rope unflipped: D 7.6-14.4 cm).
 
 Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
 canonical throw's velocity at step t plus a feedback term that steers the gripper onto the
