@@ -159,3 +159,54 @@ def test_long_push_gradient_is_finite():
     g = jax.jit(jax.grad(lambda a: env.step(state, a)[4]["r_gt"]))(a)
     assert bool(jnp.all(jnp.isfinite(g))), g
     assert float(jnp.max(jnp.abs(g))) > 0.0
+
+
+def test_starts_span_the_documented_ranges_inside_the_start_square(task):
+    """Over 32 seeds: headings fill ±heading_range, every particle lies inside the start
+    square (so the pusher can reach behind it), the rope sits at most offset_range across
+    the goal line and anywhere along it."""
+    scene = task.spec.scene
+    keys = jax.random.split(jax.random.PRNGKey(11), 32)
+    heading = np.asarray(jax.vmap(task.env.start_heading)(keys))
+    x = np.asarray(jax.vmap(lambda k: task.reset(k)[1].physics.x)(keys))
+    h = scene.heading_range
+    assert np.all(np.abs(heading) <= h) and heading.min() < -0.7 * h and \
+        heading.max() > 0.7 * h, f"headings {heading} should fill ±{h} rad"
+    rel = x[..., :2] - np.asarray(scene.centre)
+    assert np.all(np.abs(rel) <= scene.start_half + 1e-6), (
+        f"a particle {np.abs(rel).max():.4f} m from the centre, square ±{scene.start_half}")
+    centroid = rel.mean(1)
+    across, along = centroid[:, 1], centroid[:, 0]
+    off = scene.offset_range
+    assert np.all(np.abs(across) <= off + 1e-3), f"offsets across the line {across}"
+    assert across.min() < -0.5 * off and across.max() > 0.5 * off, (
+        f"offsets across the line {across} should spread over ±{off} m")
+    # the square leaves a straight rope along the line ±5.5 cm of room
+    assert along.max() - along.min() > 0.08, f"centres along the line {along} barely move"
+
+
+def test_a_start_square_the_pusher_cannot_reach_behind_is_refused():
+    import dataclasses
+
+    scene = dataclasses.replace(push_rope.PUSH_ROPE.scene, start_half=0.19)
+    with pytest.raises(ValueError, match="cannot reach behind"):
+        push_rope.PushRope(dataclasses.replace(push_rope.PUSH_ROPE, scene=scene))
+
+
+def test_distance_ignores_a_slide_along_the_goal_line_only(task, reset0):
+    """The goal slid 5 cm along its line (x) is at D = 0; moved 5 cm across it (y), at
+    D = 5 cm; turned by 0.2 rad about its centre, at the mean distance the turn moves its
+    particles."""
+    _, state = reset0
+    goal = task.default_params.goal
+
+    def dist(x):
+        return float(task.env.distance(state.physics.replace(x=x), goal))
+
+    assert dist(goal.at[:, 0].add(0.05)) == pytest.approx(0.0, abs=1e-5)
+    assert dist(goal.at[:, 1].add(0.05)) == pytest.approx(0.05, abs=1e-5)
+    c, s = np.cos(0.2), np.sin(0.2)
+    rel = goal[:, :2] - goal[:, :2].mean(0)
+    turned = goal.at[:, :2].set(goal[:, :2].mean(0) + rel @ jnp.asarray([[c, s], [-s, c]]))
+    want = float(jnp.mean(jnp.linalg.norm(turned - goal, axis=1)))
+    assert dist(turned) == pytest.approx(want, rel=1e-4), f"turned: want D {want}"

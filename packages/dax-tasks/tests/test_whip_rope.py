@@ -224,3 +224,37 @@ def test_expert_loop_flips_the_rope_from_random_starts():
     assert np.all(finite)
     assert np.all(d[:3] < 0.04), f"expert D {100 * d[:3]} cm"
     assert np.all(r[:3] > r[3:] + 0.25), f"expert r_gt {r[:3]} vs zero actions {r[3:]}"
+
+
+def test_starts_span_the_documented_ranges_inside_the_workspace(wtask):
+    """Over 32 seeds: headings fill ±heading_range and the held end points that way; the
+    gripper starts inside its workspace, within offset_range (plus the grip's own length
+    turned by the heading) of the canonical start, spread over that range in x and y."""
+    scene = wtask.spec.scene
+    env = wtask.env
+    keys = jax.random.split(jax.random.PRNGKey(11), 32)
+    heading = np.asarray(jax.vmap(env.start_heading)(keys))
+    x = np.asarray(jax.vmap(lambda k: wtask.reset(k)[1].physics.x)(keys))
+    h = scene.heading_range
+    assert np.all(np.abs(heading) <= h) and heading.min() < -0.7 * h and \
+        heading.max() > 0.7 * h, f"headings {heading} should fill ±{h} rad"
+    rest = wr.rest_particles(scene)[0][:, 0]
+    near, far = rest < 0.5 * scene.grip_length, wr.held_mask(scene) & (
+        rest >= 0.5 * scene.grip_length)
+    d = x[:, far, :2].mean(1) - x[:, near, :2].mean(1)
+    grip_dir = np.arctan2(d[:, 1], d[:, 0])
+    assert np.all(np.abs(grip_dir - heading) < 0.3), (
+        f"held end directions {grip_dir} vs drawn headings {heading}")
+    grip = x[:, wr.held_mask(scene)].mean(1)
+    lo, hi = wr.workspace(scene)
+    assert np.all(grip >= lo - 1e-6) and np.all(grip <= hi + 1e-6), "gripper outside workspace"
+    off = grip[:, :2] - wr.canonical_start(scene)[:2]
+    r = scene.offset_range
+    assert np.all(np.abs(off) <= r + 0.5 * scene.grip_length * (1 - np.cos(h)) + 0.01), off
+    assert np.all(off.max(0) - off.min(0) > r), f"start offsets {off} should spread over ±{r}"
+
+
+def test_a_start_region_outside_the_workspace_is_refused():
+    scene = dataclasses.replace(wr.WHIP_ROPE.scene, offset_range=0.45)
+    with pytest.raises(ValueError, match="workspace"):
+        wr.WhipRope(dataclasses.replace(wr.WHIP_ROPE, scene=scene))

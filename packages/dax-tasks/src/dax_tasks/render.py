@@ -57,9 +57,13 @@ def view_window(points, extra=(), pad: float = 0.25, margin: float = 0.02):
 
 
 def table_region(env) -> np.ndarray:
-    """The corners (4, 3) [m] of the table region where the env's object may start (a
-    cloth task's ``scene.table_half``; the cloth lies anywhere in it), or no points (0, 3),
-    so that every start is in view."""
+    """The corners (4, 3) [m] of the table region where the env's object may start (the
+    env's ``start_region()`` if it has one, e.g. Push-Rope's start square; a cloth task's
+    ``scene.table_half``; the object lies anywhere in it), or no points (0, 3), so that
+    every start is in view."""
+    region = getattr(env.unwrapped, "start_region", None)
+    if region is not None:
+        return np.asarray(region(), np.float64).reshape(-1, 3)
     half = getattr(getattr(env.unwrapped.spec, "scene", None), "table_half", None)
     if half is None:
         return np.zeros((0, 3))

@@ -120,8 +120,8 @@ class SceneView:
         ``key`` (default ``PRNGKey(0)``), the goal (``params.goal``), the end effector, the
         kinematic colliders (the pour tasks' bowls) and the space under them on the table,
         plus the wrist's workspace where the scene has one (``wrist_low``/``wrist_high``)
-        and the table region a cloth may start in (``table_half``), padded. Host side, once
-        per env."""
+        and the table region the object may start in (``render.table_region``), padded.
+        Host side, once per env."""
         from .render import point_spacing, table_region
 
         key = jax.random.PRNGKey(0) if key is None else key
