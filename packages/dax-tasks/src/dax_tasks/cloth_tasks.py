@@ -100,9 +100,9 @@ step after its folds: its goal is the fold at rest, and the cloth is still movin
 last fold's settling ends (Fold-T-shirt's horizon was 4, its four folds: its expert ended
 1.65 cm from the goal while the caught sleeve was still sliding out, r_gt 0.845 ± 0.004).
 Seeds 0-19 (``dax-bench run --tasks T --methods random,expert --seeds 20 --quick``, r_gt at
-the last step, mean ± SE): Fold-Cloth-1 0.993 ± 0.000 (random actions 0.393 ± 0.011),
+the last step, mean ± SE): Fold-Cloth-1 0.993 ± 0.000 (random actions 0.397 ± 0.013),
 Fold-Cloth-3 0.866 ± 0.017 (0.414), Fold-T-shirt 0.950 ± 0.004 (0.430), Unfold-Cloth-1
-0.997 ± 0.000 (0.351), Unfold-Cloth-3 0.908 ± 0.023 (0.409). (With the starts within
+0.997 ± 0.000 (0.369), Unfold-Cloth-3 0.923 ± 0.024 (0.360). (With the starts within
 ±0.1 rad and ±1 cm, a goal fixed at the canonical pose and no self-collision they were
 0.896, 0.892, 0.905, 0.877 and 0.835, random 0.04-0.10: a random drag took the cloth away
 from that goal.)
