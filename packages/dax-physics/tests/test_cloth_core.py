@@ -157,6 +157,27 @@ def test_spatial_hash_finds_every_close_pair():
     assert not missing, f"expected all {len(want)} pairs within h, missing {len(missing)}"
 
 
+def test_spatial_hash_overflow_is_counted_and_is_what_loses_pairs():
+    """A stack of 8 layers of a 4x4 grid inside one hash cell: 128 vertices in one bucket.
+    With 16 slots 112 are dropped and pairs go missing; with 128 none are, every pair
+    within h is found."""
+    h = 0.03
+    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), indexing="ij"), -1).reshape(-1, 2)
+    layers = [np.c_[0.001 + 0.01 * g, np.full(16, 0.001 + 0.007 * k)] for k in range(8)]
+    x = jnp.asarray(np.concatenate(layers), jnp.float32)  # all inside the cell [0, 2h)^3
+    d = np.linalg.norm(np.asarray(x)[:, None] - np.asarray(x)[None], axis=-1)
+    want = {(i, j) for i, j in zip(*np.nonzero(d < h), strict=True) if i != j}
+    for slots, dropped in ((16, 112), (128, 0)):
+        cfg = c.ClothConfig(thickness=h, self_candidates=slots)
+        assert int(jax.jit(c.self_collision_overflow, static_argnums=0)(cfg, x)) == dropped
+        idx, valid = c.self_collision_candidates(cfg, x)
+        found = {(i, int(j)) for i in range(len(x))
+                 for j, ok in zip(np.asarray(idx[i]), np.asarray(valid[i]), strict=True) if ok}
+        missing = len(want - found)
+        assert (missing > 0) == (dropped > 0), (
+            f"{slots} slots: {dropped} dropped vertices but {missing} pairs missing")
+
+
 def test_strain_limit_bounds_structural_stretch():
     cl = c.square_cloth(8, size=(0.2, 0.2), stretch=20.0)
     i, j = np.asarray(cl.pairs).T

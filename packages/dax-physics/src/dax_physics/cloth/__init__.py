@@ -48,6 +48,7 @@ from .sim import (
     scale_moduli,
     self_collision_candidates,
     self_collision_forces,
+    self_collision_overflow,
     spring_forces,
     spring_layout,
     square_cloth,
@@ -62,6 +63,7 @@ __all__ = [
     "make_cloth", "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper",
     "nearest_vertex_point", "pick_and_place", "polygon_mesh", "release", "rollout",
     "save_mesh", "scale_moduli", "self_collision_candidates", "self_collision_forces",
+    "self_collision_overflow",
     "spring_forces", "spring_layout", "square_cloth", "square_mesh", "stable_dt", "step",
     "tshirt_cloth", "tshirt_mesh", "tshirt_outline", "validate_mesh",
 ]

@@ -487,19 +487,11 @@ def _hash_cells(c):
     return h & jnp.int32(0x7FFFFFFF)
 
 
-def self_collision_candidates(cfg: ClothConfig, x):
-    """Candidate neighbours of every vertex from a spatial hash with static shapes.
-
-    Cells have size 2h, so a vertex's h-ball overlaps at most the 2x2x2 block of cells on
-    the side of its own cell it is nearest to. Vertices are bucketed by cell hash into a
-    table of ``T`` buckets (``T`` the power of two >= 2V) of ``self_candidates`` slots each
-    (built with one sort and one scatter; a bucket that overflows drops its extra
-    vertices), and each vertex reads the 8 buckets of its cell block: gathers only.
-    Returns ``(idx (V, 8 K) int32, valid (V, 8 K) bool)``; no gradient flows through it.
-    """
-    x = jax.lax.stop_gradient(x)
+def _hash_buckets(cfg: ClothConfig, x):
+    """The spatial hash's pieces: the table size ``T``, each vertex's cell, the side of its
+    cell it is nearest to, and, in bucket order, the vertex ``order``, its bucket ``sb``
+    and its ``rank`` within that bucket (a rank >= ``self_candidates`` does not fit)."""
     V = x.shape[0]
-    K = cfg.self_candidates
     T = 1 << max(int(2 * V - 1).bit_length(), 4)
     g = x / (2.0 * cfg.thickness)
     cell = jnp.floor(g)
@@ -510,7 +502,24 @@ def self_collision_candidates(cfg: ClothConfig, x):
     pos = jnp.arange(V, dtype=jnp.int32)
     first = jnp.concatenate([jnp.ones((1,), bool), sb[1:] != sb[:-1]])
     run_start = jax.lax.cummax(jnp.where(first, pos, 0))
-    rank = pos - run_start
+    return T, cell, side, order, sb, pos - run_start
+
+
+def self_collision_candidates(cfg: ClothConfig, x):
+    """Candidate neighbours of every vertex from a spatial hash with static shapes.
+
+    Cells have size 2h, so a vertex's h-ball overlaps at most the 2x2x2 block of cells on
+    the side of its own cell it is nearest to. Vertices are bucketed by cell hash into a
+    table of ``T`` buckets (``T`` the power of two >= 2V) of ``self_candidates`` slots each
+    (built with one sort and one scatter; a bucket that overflows drops its extra
+    vertices: :func:`self_collision_overflow` counts them), and each vertex reads the 8
+    buckets of its cell block: gathers only.
+    Returns ``(idx (V, 8 K) int32, valid (V, 8 K) bool)``; no gradient flows through it.
+    """
+    x = jax.lax.stop_gradient(x)
+    V = x.shape[0]
+    K = cfg.self_candidates
+    T, cell, side, order, sb, rank = _hash_buckets(cfg, x)
     table = jnp.full((T, K), -1, jnp.int32)
     table = table.at[sb, rank].set(order.astype(jnp.int32), mode="drop")
     offs = jnp.asarray([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], x.dtype)
@@ -518,6 +527,16 @@ def self_collision_candidates(cfg: ClothConfig, x):
     nb = _hash_cells(ncell) & jnp.int32(T - 1)
     idx = table[nb].reshape(V, 8 * K)
     return jnp.maximum(idx, 0), idx >= 0
+
+
+def self_collision_overflow(cfg: ClothConfig, x):
+    """How many vertices the self-collision hash drops at positions ``x`` (V, 3): those
+    past the ``self_candidates`` slots of their bucket (a cell of side 2h holding more
+    vertices than that, e.g. a stack of many layers, or cells that share a bucket). A
+    dropped vertex is no other vertex's candidate, so its contacts are missed; a non-zero
+    count asks for a larger ``self_candidates``. int32 scalar, jit-able."""
+    rank = _hash_buckets(cfg, jax.lax.stop_gradient(x))[-1]
+    return jnp.sum(rank >= cfg.self_candidates, dtype=jnp.int32)
 
 
 def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v):
