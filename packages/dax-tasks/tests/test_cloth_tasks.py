@@ -186,23 +186,31 @@ def test_fold_tasks_leave_a_step_after_their_folds():
         assert spec.horizon > n, f"{name}: horizon {spec.horizon}, {n} folds"
 
 
-def _layer_gaps(x, faces, rest, exclude):
-    """Vertical gaps [m] between the cloth's layers: for every vertex and every triangle
-    whose table-plane projection contains it (and whose corners are all farther than
-    ``exclude`` from it on the rest mesh, so a crease's own neighbours do not count), the
-    height of the vertex over or under the triangle at that point."""
+def _heights_over_points(x, faces, p):
+    """For table points ``p`` (P, 1, 2+) and every triangle of the cloth ``x`` (faces (F, 3)):
+    the height of the triangle above each point (P, F) and whether the triangle's
+    table-plane projection contains the point (barycentric weights all >= 0; a triangle
+    seen edge-on contains nothing)."""
     a, b, c = (x[faces[:, k]] for k in range(3))
     det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
     det = np.where(np.abs(det) > 1e-12, det, np.nan)
-    p = x[:, None, :]
     l1 = ((b[:, 1] - c[:, 1]) * (p[..., 0] - c[:, 0])
           + (c[:, 0] - b[:, 0]) * (p[..., 1] - c[:, 1])) / det
     l2 = ((c[:, 1] - a[:, 1]) * (p[..., 0] - c[:, 0])
           + (a[:, 0] - c[:, 0]) * (p[..., 1] - c[:, 1])) / det
     l3 = 1.0 - l1 - l2
     inside = (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
+    return l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2], inside
+
+
+def _layer_gaps(x, faces, rest, exclude):
+    """Vertical gaps [m] between the cloth's layers: for every vertex and every triangle
+    whose table-plane projection contains it (and whose corners are all farther than
+    ``exclude`` from it on the rest mesh, so a crease's own neighbours do not count), the
+    height of the vertex over or under the triangle at that point."""
+    p = x[:, None, :]
+    z, inside = _heights_over_points(x, faces, p)
     far = np.min(np.linalg.norm(rest[faces][None] - rest[:, None, None], axis=-1), -1) > exclude
-    z = l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2]
     return np.abs(p[..., 2] - z)[inside & far]
 
 
@@ -231,19 +239,11 @@ def test_folded_layers_stay_apart_only_with_self_collision(self_collision):
 def _separated_layers(x, faces, gap):
     """The number of layers of cloth lying one over another at least ``gap`` [m] apart
     over each point of a 5 mm grid of table points (25 mm^2 each)."""
-    a, b, c = (x[faces[:, k]] for k in range(3))
     lo, hi = x[:, :2].min(0), x[:, :2].max(0)
     g = np.stack(np.meshgrid(np.arange(lo[0], hi[0], 0.005), np.arange(lo[1], hi[1], 0.005)),
                  -1).reshape(-1, 1, 2)
-    det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
-    det = np.where(np.abs(det) > 1e-12, det, np.nan)
-    l1 = ((b[:, 1] - c[:, 1]) * (g[..., 0] - c[:, 0])
-          + (c[:, 0] - b[:, 0]) * (g[..., 1] - c[:, 1])) / det
-    l2 = ((c[:, 1] - a[:, 1]) * (g[..., 0] - c[:, 0])
-          + (a[:, 0] - c[:, 0]) * (g[..., 1] - c[:, 1])) / det
-    l3 = 1.0 - l1 - l2
-    inside = (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
-    z = np.where(inside, l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2], np.nan)
+    z, inside = _heights_over_points(x, faces, g)
+    z = np.where(inside, z, np.nan)
     layers = []
     for heights in z:
         heights = np.sort(heights[np.isfinite(heights)])
