@@ -28,10 +28,15 @@ def _fold_setup(dtype=jnp.float32, n=N, size=L, friction=1.0, strain_limit=0.05)
 
 
 def test_fold_corner_onto_opposite_corner_gives_two_ordered_layers():
+    """The corner is placed 0.15 L inside the opposite corner (at 0.1 L it lands 1 cm from
+    the bottom layer's edge and slides off it after release), and the layers end a
+    thickness apart: with every contact found (the all-pairs search) the smallest gap is
+    0.95 h; the 8-slot hash, which drops vertices of the stack, let it sink to 0.75 h."""
     cfg, cl, st = _fold_setup()
+    assert c.self_search_mode(cfg, cl.rest_pos.shape[0]) == "all"
     sc = c.PickPlace(approach_steps=100, lift_steps=1000, move_steps=2500, lower_steps=1000,
                      settle_steps=2500, lift_height=0.08, radius=0.5 * SP)
-    place = jnp.array([0.9 * L, 0.9 * L, H])
+    place = jnp.array([0.85 * L, 0.85 * L, H])
     out = jax.jit(lambda p, q: c.pick_and_place(cfg, cl, st, p, q, sc))(
         jnp.zeros(3), place)
     x = np.asarray(out.x).reshape(N, N, 3)
@@ -40,11 +45,11 @@ def test_fold_corner_onto_opposite_corner_gives_two_ordered_layers():
     top, bot = x[ii + jj < N - 1], x[ii + jj >= N - 1]  # folded half / half that stays
     d = np.linalg.norm(top[:, None, :2] - bot[None, :, :2], axis=-1)
     near = d.min(1) < 0.7 * SP
-    assert near.mean() > 0.4, f"expected > 40 % of the folded half over the other half, " \
+    assert near.mean() > 0.8, f"expected > 80 % of the folded half over the other half, " \
                               f"got {near.mean():.2f}"
     gap = top[near, 2] - bot[d.argmin(1)[near], 2]
-    assert gap.min() >= 0.5 * H, f"expected the folded layer >= 0.5 h = {0.5 * H:.4f} m above " \
-                                 f"the bottom layer, got min gap {gap.min():.4f} m"
+    assert gap.min() >= 0.85 * H, f"expected the folded layer >= 0.85 h = {0.85 * H:.4f} m " \
+                                  f"above the bottom layer, got min gap {gap.min():.4f} m"
     assert bot[:, 2].min() >= 0.0, f"expected no vertex below the table, got {bot[:, 2].min()}"
 
 

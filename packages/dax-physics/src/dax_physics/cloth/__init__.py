@@ -35,6 +35,8 @@ from .mesh import (
     validate_mesh,
 )
 from .sim import (
+    ALL_PAIRS_MAX,
+    SELF_SEARCHES,
     Cloth,
     ClothConfig,
     ClothState,
@@ -49,6 +51,7 @@ from .sim import (
     self_collision_candidates,
     self_collision_forces,
     self_collision_overflow,
+    self_search_mode,
     spring_forces,
     spring_layout,
     square_cloth,
@@ -57,13 +60,14 @@ from .sim import (
 )
 
 __all__ = [
-    "Cloth", "ClothConfig", "ClothState", "GridCloth", "GridClothConfig", "GridState",
+    "ALL_PAIRS_MAX", "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "GridCloth",
+    "GridClothConfig", "GridState",
     "MeshError", "PickPlace", "check_stable", "check_state", "cloth_drop_scene", "energy",
     "grasp", "grid_forces", "grid_rest_lengths", "grid_rollout", "grid_step", "load_mesh",
     "make_cloth", "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper",
     "nearest_vertex_point", "pick_and_place", "polygon_mesh", "release", "rollout",
     "save_mesh", "scale_moduli", "self_collision_candidates", "self_collision_forces",
-    "self_collision_overflow",
+    "self_collision_overflow", "self_search_mode",
     "spring_forces", "spring_layout", "square_cloth", "square_mesh", "stable_dt", "step",
     "tshirt_cloth", "tshirt_mesh", "tshirt_outline", "validate_mesh",
 ]
