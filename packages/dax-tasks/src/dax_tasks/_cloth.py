@@ -50,8 +50,13 @@ class ClothScene:
         limit; 0 with ``rotation_range`` 0: the unrandomised start).
     thickness [m]: self-collision thickness h (vertex pairs closer than h repel, see
         :class:`dax_physics.cloth.ClothConfig`); 0 turns self-collision off.
-    self_stiffness [N/m], self_friction [N s/m], self_candidates: the self-collision's
-        repulsion stiffness, tangential friction and spatial-hash slots (ClothConfig).
+    self_stiffness [N/m], self_friction [N s/m], self_search, self_candidates: the
+        self-collision's repulsion stiffness, tangential friction, pair search and
+        spatial-hash slots (ClothConfig). The default search, ``"auto"``, tests every vertex
+        pair on meshes of up to ``dax_physics.cloth.ALL_PAIRS_MAX`` vertices (every task's
+        default mesh and the square cloths' 529-vertex reference), so no contact is dropped
+        however many layers stack; the hash and its slots are used only above that size
+        (the T-shirt's 3584-vertex reference, a timing reference).
     friction_model: the table friction law, ``"coulomb"`` (default: stick-slip) or
         ``"smooth"`` (a regularised law whose rollouts are smooth in the actions, for
         gradient-based planners; see :class:`dax_physics.cloth.ClothConfig`).
@@ -76,6 +81,7 @@ class ClothScene:
     self_stiffness: float = 0.5
     self_damping: float = 0.0
     self_friction: float = 0.0
+    self_search: str = "auto"
     self_candidates: int = 16
 
     def __post_init__(self):
@@ -96,6 +102,9 @@ class ClothScene:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.self_candidates < 1:
             raise ValueError(f"self_candidates must be >= 1, got {self.self_candidates}")
+        if self.self_search not in dc.SELF_SEARCHES:
+            raise ValueError(f"unknown self_search {self.self_search!r}; valid: "
+                             f"{', '.join(dc.SELF_SEARCHES)}")
         if self.settle_substeps < 0:
             raise ValueError(f"settle_substeps must be >= 0, got {self.settle_substeps}")
 
@@ -193,6 +202,7 @@ def cloth_config(scene: ClothScene) -> dc.ClothConfig:
                           self_stiffness=scene.self_stiffness,
                           self_damping=scene.self_damping,
                           self_friction=scene.self_friction,
+                          self_search=scene.self_search,
                           self_candidates=scene.self_candidates)
 
 
