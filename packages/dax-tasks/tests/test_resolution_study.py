@@ -116,6 +116,26 @@ def test_tiny_study_runs_with_zero_error_only_at_the_reference(tmp_path):
     assert all(math.isfinite(e) for e in chaos["error"])
 
 
+def test_replay_mode_drives_every_rung_with_the_defaults_actions():
+    """Replaying a closed-loop episode's actions on its own rung reproduces it exactly
+    (same states, same scores), so a replay study's rungs differ only by resolution; the
+    study replays the default rung's actions on the others."""
+    coarse = dataclasses.replace(_tiny_rung("5 x 5", 5), is_default=True)
+    closed = res.run_rung("fold_cloth1", coarse, seed=1, steps=2)
+    again = res.run_rung("fold_cloth1", coarse, seed=1, steps=2, actions=closed["_actions"])
+    assert again["r_gt"] == closed["r_gt"]
+    for a, b in zip(closed["_points"], again["_points"], strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="actions to replay"):
+        res.run_rung("fold_cloth1", coarse, seed=1, steps=2, actions=closed["_actions"][:1])
+    out = res.study("fold_cloth1", [coarse, _tiny_rung("7 x 7", 7, fine=True)], seed=1,
+                    steps=2, floor=0.0, mode="replay")
+    assert out["mode"] == "replay" and out["rungs"][0]["r_gt"] == closed["r_gt"]
+    assert out["rungs"][1]["error_mean"] == 0.0 and out["rungs"][0]["error_mean"] > 1e-4
+    with pytest.raises(ValueError, match="study mode"):
+        res.study("fold_cloth1", [coarse], mode="open")
+
+
 def test_bench_resolution_subcommand_refuses_an_unknown_task(capsys, tmp_path):
     with pytest.raises(SystemExit) as exc:
         bench.main(["resolution", "--task", "fold_origami", "--out", str(tmp_path)])

@@ -67,6 +67,7 @@ import numpy as np
 
 from dax_physics.tools.timing import timed_compile
 
+from ..io import atomic_write
 from ..registry import TASKS, env_class, get_spec, make
 
 #: Half-width [m] of the hat kernel (in rest arc length) of a rope's centre-line points.
@@ -75,6 +76,8 @@ ROPE_KERNEL = 0.02
 ROPE_POINTS = 25
 #: The chaos floor's start perturbation [m] (see :func:`study`).
 FLOOR_SHIFT = 1e-5
+#: How the rungs are driven (see :func:`study`).
+STUDY_MODES = ("closed", "replay")
 #: Fraction of the largest stable substep (the bound each task checks itself; the cloth's
 #: already holds a safety factor of 0.9, the MPM's a CFL number of 0.5) a rung may use.
 DT_SAFETY = 1.0
@@ -373,12 +376,13 @@ def ladder(name: str) -> list:
 # ----------------------------------------------------------------------------- running
 
 def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
-             log=None, perturb: float = 0.0) -> dict:
-    """The expert's closed-loop episode of ``name`` at ``rung`` from ``PRNGKey(seed)``:
-    the probe's points at t = 0..T, ``r_gt`` and ``D`` per step, CPU and wall time per env
-    step (medians over the steps, after an ahead-of-time compile). ``perturb`` [m] moves
-    the object's particles or vertices (not the tools) by that much along x at the start
-    (the chaos floor, see :func:`study`)."""
+             log=None, perturb: float = 0.0, actions=None) -> dict:
+    """The expert's closed-loop episode of ``name`` at ``rung`` from ``PRNGKey(seed)``, or,
+    with ``actions`` (a sequence of at least ``steps`` actions), those actions replayed
+    open loop: the probe's points at t = 0..T, ``r_gt`` and ``D`` per step, the actions
+    taken, CPU and wall time per env step (medians over the steps, after an ahead-of-time
+    compile). ``perturb`` [m] moves the object's particles or vertices (not the tools) by
+    that much along x at the start (the chaos floor, see :func:`study`)."""
     t_build = time.perf_counter()
     env = make(name, **rung.overrides)
     build_s = time.perf_counter() - t_build
@@ -392,13 +396,22 @@ def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
         x = state.physics.x
         state = state.replace(physics=state.physics.replace(
             x=x + jnp.asarray([perturb, 0.0, 0.0], x.dtype)))
-    expert, c_expert = timed_compile(jax.jit(env.expert_action), state, params)
-    action = expert(state, params)
+    if actions is None:
+        expert, c_expert = timed_compile(jax.jit(env.expert_action), state, params)
+        action = expert(state, params)
+    else:
+        if len(actions) < steps:
+            raise ValueError(f"{len(actions)} actions to replay, {steps} steps asked")
+        c_expert, action = 0.0, jnp.asarray(actions[0])
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
     points = [probe(env.object_points(state.physics))]
-    r_gt, dist, cpu, wall = [], [], [], []
+    r_gt, dist, cpu, wall, taken = [], [], [], [], []
     for t in range(steps):
-        action = jax.block_until_ready(expert(state, params))
+        if actions is None:
+            action = jax.block_until_ready(expert(state, params))
+        else:
+            action = jnp.asarray(actions[t])
+        taken.append(np.asarray(action))
         c0, w0 = time.process_time(), time.perf_counter()
         _, state, _, _, info = jax.block_until_ready(step(state, action, params))
         cpu.append(time.process_time() - c0)
@@ -420,7 +433,7 @@ def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
         "step_cpu_s": float(np.median(cpu)), "step_wall_s": float(np.median(wall)),
         "compile_step_s": c_step, "compile_expert_s": c_expert, "build_s": build_s,
         "finite": bool(np.all(np.isfinite(np.asarray(points[-1])))),
-        "_points": points,
+        "_points": points, "_actions": taken,
     }
 
 
@@ -452,7 +465,7 @@ def compare(name: str, records: list) -> list:
         pts = rec["_points"]
         n = min(len(pts), len(ref))
         err = [point_error(kind, pts[t], ref[t]) for t in range(n)]
-        rec = {k: v for k, v in rec.items() if k != "_points"}
+        rec = {k: v for k, v in rec.items() if k not in ("_points", "_actions")}
         rec.update(error_t0=err[0], error=err[1:], error_mean=float(np.mean(err[1:])),
                    error_max=float(np.max(err[1:])),
                    score_diff=rec["final_r_gt"] - fine["final_r_gt"],
@@ -501,9 +514,16 @@ def verdict(records: list, time_key: str = "step_cpu_s") -> dict:
 
 
 def study(name: str, rungs: list | None = None, seed: int = 0, steps: int | None = None,
-          log=None, floor: float = FLOOR_SHIFT) -> dict:
+          log=None, floor: float = FLOOR_SHIFT, mode: str = "closed") -> dict:
     """Run every rung (default :func:`ladder`) and compare them (see the module docstring);
     the JSON-able result.
+
+    ``mode``: ``"closed"``, each rung's expert acts on its own state (the score a rung
+    gets, but a rung whose expert picks another vertex or push point diverges from the
+    fine rung for a reason that is not the physics); ``"replay"``, the default rung's
+    closed-loop actions are replayed open loop on every rung (the same control inputs:
+    the error is the physics' resolution error alone, the errors of a converging solver
+    shrink toward the fine rung; the scores are those of the replayed actions).
 
     ``floor`` [m] (0: skipped): the default rung (else the first) is run a second time
     with its object moved by ``floor`` along x at the start, and compared with its own
@@ -512,29 +532,40 @@ def study(name: str, rungs: list | None = None, seed: int = 0, steps: int | None
     part of a rung's error that no resolution removes (the folds of stacked cloth layers
     and the splashes of a pour are chaotic), so differences between rungs below it say
     nothing about the resolution."""
+    if mode not in STUDY_MODES:
+        raise ValueError(f"unknown study mode {mode!r}; valid: {', '.join(STUDY_MODES)}")
     rungs = ladder(name) if rungs is None else list(rungs)
     if not rungs:
         raise ValueError("a study needs at least one rung")
+    k = next((i for i, r in enumerate(rungs) if r.is_default), 0)
+    replay = None
+    if mode == "replay":  # the default first: its actions drive every other rung
+        if log:
+            log(f"[resolution] {name}: {rungs[k].label} (its actions are replayed)")
+        first = run_rung(name, rungs[k], seed, steps, log)
+        replay = first["_actions"]
     records = []
-    for rung in rungs:
+    for i, rung in enumerate(rungs):
+        if replay is not None and i == k:
+            records.append(first)
+            continue
         if log:
             log(f"[resolution] {name}: {rung.label}")
-        records.append(run_rung(name, rung, seed, steps, log))
+        records.append(run_rung(name, rung, seed, steps, log, actions=replay))
     chaos = None
     if floor:
-        k = next((i for i, r in enumerate(rungs) if r.is_default), 0)
         base = dataclasses.replace(rungs[k], label=rungs[k].label + f" moved {floor:g} m",
                                    is_default=False, is_fine=True)
         if log:
             log(f"[resolution] {name}: {base.label} (chaos floor)")
-        moved = run_rung(name, base, seed, steps, log, perturb=floor)
+        moved = run_rung(name, base, seed, steps, log, perturb=floor, actions=replay)
         pair = compare(name, [{**records[k], "is_fine": False}, moved])
         chaos = {"rung": rungs[k].label, "shift_m": floor,
                  **{key: pair[0][key] for key in ("error", "error_t0", "error_mean",
                                                   "error_max", "score_diff")}}
     records = compare(name, records)
     return {"bench": "resolution", "task": name, "seed": seed, "steps": records[0]["steps"],
-            "probe": PROBE_KINDS[name], "error_unit": "m",
+            "mode": mode, "probe": PROBE_KINDS[name], "error_unit": "m",
             "time_key": "step_cpu_s", "rungs": records, **verdict(records),
             "chaos_floor": chaos,
             "device": str(jax.devices()[0]), "load_average": list(os.getloadavg())}
@@ -580,11 +611,12 @@ def chart(result: dict, path: str) -> bool:
     what = {"cloud": "Chamfer", "centreline": "centre-line point",
             "mesh": "material point"}[result["probe"]]
     ax.set_ylabel(f"{what} error vs fine [mm]")
-    ax.set_title(f"{result['task']}: expert, seed {result['seed']}, {result['steps']} steps",
-                 fontsize=9)
+    how = {"closed": "expert (closed loop)", "replay": "default's expert actions replayed"}
+    ax.set_title(f"{result['task']}: {how[result.get('mode', 'closed')]}, seed "
+                 f"{result['seed']}, {result['steps']} steps", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=80))
     plt.close(fig)
     return True
 
@@ -601,6 +633,10 @@ def main(argv=None) -> dict:
     p.add_argument("--floor", type=float, default=FLOOR_SHIFT,
                    help="start perturbation [m] of the chaos-floor run of the default "
                         "(0: no such run)")
+    p.add_argument("--mode", choices=STUDY_MODES, default="closed",
+                   help="closed: each rung's expert acts on its own state; replay: the "
+                        "default rung's expert actions replayed on every rung (the physics' "
+                        "resolution error alone)")
     p.add_argument("--prefix", default="resolution-",
                    help="file name prefix: DIR/<prefix><task>.json and .png")
     args = p.parse_args(argv)
@@ -613,12 +649,12 @@ def main(argv=None) -> dict:
         raise SystemExit(2)
     os.makedirs(args.out, exist_ok=True)
     result = study(args.task, seed=args.seed, steps=args.steps,
-                   log=lambda m: print(m, file=sys.stderr, flush=True), floor=args.floor)
+                   log=lambda m: print(m, file=sys.stderr, flush=True), floor=args.floor,
+                   mode=args.mode)
     base = os.path.join(args.out, f"{args.prefix}{args.task}")
-    with open(base + ".json", "w") as f:
-        json.dump(result, f, indent=1)
+    atomic_write(base + ".json", json.dumps(result, indent=1).encode())
     result["png"] = chart(result, base + ".png")
-    summary = {k: result[k] for k in ("task", "default_on_front", "default_error_mean_m",
+    summary = {k: result[k] for k in ("task", "mode", "default_on_front", "default_error_mean_m",
                                       "default_error_max_m", "default_score_diff")
                if k in result}
     if result.get("chaos_floor"):
