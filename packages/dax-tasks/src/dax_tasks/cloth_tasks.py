@@ -100,23 +100,20 @@ step after its folds: its goal is the fold at rest, and the cloth is still movin
 last fold's settling ends (Fold-T-shirt's horizon was 4, its four folds: its expert ended
 1.65 cm from the goal while the caught sleeve was still sliding out, r_gt 0.845 ± 0.004).
 Seeds 0-19 (``dax-bench run --tasks T --methods random,expert --seeds 20 --quick``, r_gt at
-the last step, mean ± SE): Fold-Cloth-1 0.993 ± 0.000 (random actions 0.397 ± 0.013),
-Fold-Cloth-3 0.866 ± 0.017 (0.414), Fold-T-shirt 0.950 ± 0.004 (0.430), Unfold-Cloth-1
-0.997 ± 0.000 (0.369), Unfold-Cloth-3 0.923 ± 0.024 (0.360). (With the starts within
+the last step, mean ± SE): Fold-Cloth-1 0.993 ± 0.000 (random actions 0.405 ± 0.010),
+Fold-Cloth-3 0.989 ± 0.003 (0.408), Fold-T-shirt 0.948 ± 0.001 (0.428), Unfold-Cloth-1
+0.998 ± 0.000 (0.423), Unfold-Cloth-3 0.962 ± 0.002 (0.402). (With the starts within
 ±0.1 rad and ±1 cm, a goal fixed at the canonical pose and no self-collision they were
 0.896, 0.892, 0.905, 0.877 and 0.835, random 0.04-0.10: a random drag took the cloth away
-from that goal.)
+from that goal. With self-collision through a 16-slot spatial hash, which dropped the
+vertices of crowded stacks and their contacts, Fold-Cloth-3's expert scored 0.866 ± 0.017
+and Unfold-Cloth-3's 0.923: every pair is tested now, see ``ClothScene.self_search``.)
 
 Known limitations. Self-collision is vertex-vertex at the mesh spacing, so layers lie about
-3 cm apart, and in the three-fold stack a few vertices (5 of the 108 that lie over another
-layer in Unfold-Cloth-3's start) still end in the plane of another layer. Layers slide
-over each other with only viscous friction (nothing holds a layer still against a steady
-push), and folds of stacked layers are sensitive to small differences between starts: the
-canonical plan from a start shifted by 1 cm puts a vertex 1.6 cm elsewhere after the
-first fold (the spatial hash of the self-collision drops some contacts of dense stacks,
-differently at each pose) and the stacked second and third folds amplify it, which bounds
-Fold-Cloth-3's expert (0.68-0.98 over the seeds, 0.99 from the unrandomised start; the
-dax-tasks README lists what was tried).
+3 cm apart, and in the three-fold stack a vertex can still end in the plane of another
+layer (1 of the 100 that lie over another layer in Unfold-Cloth-3's start is within 1 mm
+of it). Layers slide over each other with only viscous friction (nothing holds a layer
+still against a steady push).
 """
 
 from __future__ import annotations
