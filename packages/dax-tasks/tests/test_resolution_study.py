@@ -87,6 +87,25 @@ def test_every_ladder_has_the_default_and_a_twice_as_fine_reference(name):
         assert math.isclose(s.substeps * s.scene.dt, step_time, rel_tol=1e-9), r.label
 
 
+@pytest.mark.parametrize("name", ["fold_cloth1", "fold_tshirt"])
+def test_scaled_contact_keeps_the_pressure_between_layers(name):
+    """With ``scale_contact`` each rung's per-pair contact constants are the default's times
+    (spacing / default spacing)^4, so k h^3 / s^4, the pressure between two layers at a
+    given gap, is the same on every mesh; without it they are the default's."""
+    base = dax_tasks.get_spec(name).scene
+    for scaled in (False, True):
+        for r in res.ladder(name, scale_contact=scaled):
+            scene = r.overrides.get("scene", base)
+            f = (scene.mesh_spacing / base.mesh_spacing) ** 4 if scaled else 1.0
+            for key in ("self_stiffness", "self_damping", "self_friction"):
+                assert math.isclose(getattr(scene, key), getattr(base, key) * f,
+                                    rel_tol=1e-9), (r.label, key, scaled)
+            pressure = scene.self_stiffness * scene.thickness ** 3 / scene.mesh_spacing ** 4
+            want = base.self_stiffness * base.thickness ** 3 / base.mesh_spacing ** 4
+            assert math.isclose(pressure, want, rel_tol=1e-9) == (scaled or r.is_default), (
+                r.label, scaled)
+
+
 def _tiny_rung(label, n, fine=False):
     spec = dax_tasks.get_spec("fold_cloth1")
     scene = dataclasses.replace(spec.scene, n=n, thickness=0.0, dt=1e-3, settle_substeps=20)

@@ -13,6 +13,13 @@ and, where matplotlib is installed (it is not a dependency), ``DIR/resolution-<t
 the episode's object-point error against CPU time per env step, the Pareto front and the
 default marked.
 
+``--mode replay`` replays the default rung's expert actions on every rung instead (the
+physics' resolution error alone, without the experts' own choices; see :func:`study`).
+``--scale-contact`` (cloth) scales the self-collision's per-pair constants with the mesh
+(see :func:`ladder`): the contact is per vertex pair, so with fixed constants a finer mesh
+presses its layers apart harder and the rungs differ in their contact law, not only in
+their discretisation.
+
 **How trajectories of different resolutions are compared.** The particle or vertex counts
 differ between rungs, so the comparison is at resolution-independent points:
 
@@ -55,6 +62,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -298,12 +306,13 @@ def _mpm_rung(name, label, note, dx=None, ppc=None, window=None, domain=None,
                 is_default=new == scene and substeps == spec.substeps, is_fine=fine)
 
 
-def _cloth_rung(name, label, note, fine=False, **scene_changes):
+def _cloth_rung(name, label, note, fine=False, scale_contact=False, **scene_changes):
     """A cloth rung: the default scene with a new mesh (``n`` or ``spacing``), the substep at
     most ``DT_SAFETY`` of its stable bound and enough substeps for the default's simulated
     time per env step (the settling keeping its share), and the self-collision's hash
     slots scaled with the vertices per hash cell (at least the default's). The cloth's
-    material, thickness and contact constants are the default's."""
+    material and thickness are the default's; its per-pair contact constants too, or with
+    ``scale_contact`` scaled by the mesh spacing to the fourth power (see below)."""
     import dax_physics.cloth as dc
 
     from .. import _cloth
@@ -314,9 +323,17 @@ def _cloth_rung(name, label, note, fine=False, **scene_changes):
     if trial == scene:
         return Rung(label, scene.mesh_spacing, {}, note, is_default=True, is_fine=fine)
     ratio = scene.mesh_spacing / trial.mesh_spacing
+    # Self-collision is per vertex pair: a vertex of area s^2 meets ~pi h^2 / s^2 vertices of
+    # the layer under it, so the pressure between layers goes as k h^3 / s^4. Scaling the
+    # per-pair stiffness, damping and friction by s^4 keeps the layers' pressure-gap law
+    # (their rest gap under gravity, their shear resistance) the same on every mesh.
+    contact = ratio ** -4 if scale_contact else 1.0
     trial = dataclasses.replace(
         trial, self_candidates=max(scene.self_candidates,
-                                   math.ceil(scene.self_candidates * ratio ** 2)))
+                                   math.ceil(scene.self_candidates * ratio ** 2)),
+        self_stiffness=scene.self_stiffness * contact,
+        self_damping=scene.self_damping * contact,
+        self_friction=scene.self_friction * contact)
     step_time = spec.substeps * scene.dt
     dtmax = dc.max_stable_dt(_cloth.cloth_config(trial), _cloth.make_cloth(trial))
     substeps = _stable_substeps(step_time, dtmax)
@@ -326,9 +343,13 @@ def _cloth_rung(name, label, note, fine=False, **scene_changes):
                 is_fine=fine)
 
 
-def ladder(name: str) -> list:
+def ladder(name: str, scale_contact: bool = False) -> list:
     """The rungs of task ``name``, coarse to fine; the last is the fine reference (twice
-    as fine as the default in spacing: grid and particles, or mesh)."""
+    as fine as the default in spacing: grid and particles, or mesh). ``scale_contact``
+    (cloth): the self-collision's per-pair stiffness, damping and friction scaled by the
+    mesh spacing to the fourth power, so the pressure between layers is the same law on
+    every mesh (off: the same per-pair constants, a contact that stiffens as the mesh
+    refines)."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
     if name in ("pour_water", "pour_soup"):
@@ -356,19 +377,21 @@ def ladder(name: str) -> list:
                       dx=0.00625, fine=True),
         ]
     elif name == "fold_tshirt":
+        cloth = functools.partial(_cloth_rung, name, scale_contact=scale_contact)
         rungs = [
-            _cloth_rung(name, "3.5 cm mesh", "coarser mesh", spacing=0.035),
-            _cloth_rung(name, "2.5 cm mesh (default)", "the default"),
-            _cloth_rung(name, "1.875 cm mesh", "mesh spacing x 0.75", spacing=0.01875),
-            _cloth_rung(name, "1.25 cm mesh (fine)", "mesh spacing halved", fine=True,
+            cloth("3.5 cm mesh", "coarser mesh", spacing=0.035),
+            cloth("2.5 cm mesh (default)", "the default"),
+            cloth("1.875 cm mesh", "mesh spacing x 0.75", spacing=0.01875),
+            cloth("1.25 cm mesh (fine)", "mesh spacing halved", fine=True,
                         spacing=0.0125),
         ]
     else:  # the square cloths
+        cloth = functools.partial(_cloth_rung, name, scale_contact=scale_contact)
         rungs = [
-            _cloth_rung(name, "9 x 9 (3.75 cm)", "coarser mesh", n=9),
-            _cloth_rung(name, "11 x 11 (3 cm, default)", "the default"),
-            _cloth_rung(name, "16 x 16 (2 cm)", "mesh spacing x 2/3", n=16),
-            _cloth_rung(name, "21 x 21 (1.5 cm, fine)", "mesh spacing halved", fine=True, n=21),
+            cloth("9 x 9 (3.75 cm)", "coarser mesh", n=9),
+            cloth("11 x 11 (3 cm, default)", "the default"),
+            cloth("16 x 16 (2 cm)", "mesh spacing x 2/3", n=16),
+            cloth("21 x 21 (1.5 cm, fine)", "mesh spacing halved", fine=True, n=21),
         ]
     return rungs
 
@@ -637,6 +660,9 @@ def main(argv=None) -> dict:
                    help="closed: each rung's expert acts on its own state; replay: the "
                         "default rung's expert actions replayed on every rung (the physics' "
                         "resolution error alone)")
+    p.add_argument("--scale-contact", action="store_true",
+                   help="cloth: scale the self-collision's per-pair constants by the mesh "
+                        "spacing^4 on every rung (the same pressure between layers)")
     p.add_argument("--prefix", default="resolution-",
                    help="file name prefix: DIR/<prefix><task>.json and .png")
     args = p.parse_args(argv)
@@ -648,7 +674,8 @@ def main(argv=None) -> dict:
         print("error: --steps must be >= 1", file=sys.stderr)
         raise SystemExit(2)
     os.makedirs(args.out, exist_ok=True)
-    result = study(args.task, seed=args.seed, steps=args.steps,
+    result = study(args.task, ladder(args.task, args.scale_contact), seed=args.seed,
+                   steps=args.steps,
                    log=lambda m: print(m, file=sys.stderr, flush=True), floor=args.floor,
                    mode=args.mode)
     base = os.path.join(args.out, f"{args.prefix}{args.task}")
