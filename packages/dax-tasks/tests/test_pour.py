@@ -149,3 +149,19 @@ def test_soup_chunks_stay_solid(soup, soup_runs):
         assert err < 0.3, f"chunk {k}: pairwise distances changed by {err:.2f} of its size"
         moved = max(moved, float(np.linalg.norm(x1.mean(0) - x0.mean(0))))
     assert moved > 0.03, f"chunks moved at most {moved:.3f} m: the test poured nothing"
+
+
+@pytest.mark.parametrize("ppc", [4, 8, 19])
+def test_soup_chunks_have_their_cube_volume_at_any_particle_count(ppc):
+    """A chunk's particles share the cube's volume ``chunk_size^3`` whatever the particles
+    per cell: its lattice holds a whole number of particles per side, so ``dx^3 / ppc``
+    each gave 2.0 of 3.375 cm^3 at 4 per cell (8 particles) and 3.375 only where the
+    lattice fits (27 at 8 per cell)."""
+    scene = dataclasses.replace(dax_tasks.get_spec("pour_soup").scene, ppc=ppc)
+    x, mat, chunk, vol = pour.contents(scene)
+    assert vol.shape == (len(x),)
+    for k in range(scene.n_chunks):
+        assert np.sum(vol[chunk == k]) == pytest.approx(scene.chunk_size ** 3, rel=1e-9)
+    water = np.sum(vol[mat == 0])
+    assert np.allclose(vol[mat == 0], scene.dx ** 3 / ppc)
+    assert 30e-6 < water < 40e-6, f"water volume {water * 1e6:.1f} cm^3"

@@ -160,7 +160,11 @@ def mpm_config(scene: PourScene) -> MPMConfig:
 def contents(scene: PourScene):
     """Particles of the source bowl's contents in the bowl frame (origin at the cavity's
     bottom centre) (NumPy): positions (N, 3), material ids (N,), chunk id (N,) (-1 for
-    water) and the volume per particle [m^3]."""
+    water) and the rest volume per particle [m^3]: a scalar (``dx^3 / ppc``) without
+    chunks, else (N,), each chunk's particles sharing its volume ``chunk_size^3`` (a
+    chunk's lattice holds a whole number of particles per side, so ``dx^3 / ppc`` each
+    would give it the volume of that lattice, not of the cube: 2.0 of 3.375 cm^3 at 4
+    particles per cell)."""
     r_out, _, wall = scene.source_bowl
     r_in = r_out - wall
     fill = scene.fill_height
@@ -171,7 +175,7 @@ def contents(scene: PourScene):
     chunk = np.full(len(x), -1, np.int32)
     if scene.n_chunks:
         s = scene.chunk_size
-        cubes, cmat, cid = [], [], []
+        cubes, cmat, cid, cvol = [], [], [], []
         ring = 0.5 * (r_in - gap) - 0.1 * s
         keep = np.ones(len(x), bool)
         for k in range(scene.n_chunks):
@@ -183,9 +187,11 @@ def contents(scene: PourScene):
             cubes.append(xc)
             cmat.append(np.ones(len(xc), np.int32))
             cid.append(np.full(len(xc), k, np.int32))
+            cvol.append(np.full(len(xc), s ** 3 / len(xc)))
         x = np.concatenate([x[keep]] + cubes)
         mat = np.concatenate([mat[keep]] + cmat)
         chunk = np.concatenate([chunk[keep]] + cid)
+        vol = np.concatenate([np.full(int(keep.sum()), vol)] + cvol)
     return x.astype(np.float32), mat, chunk, vol
 
 
@@ -303,9 +309,10 @@ class Pour(MPMEnv):
         scene = self.spec.scene
         x0, _, _, vol = contents(scene)
         n = len(x0)
+        total = float(np.sum(np.broadcast_to(vol, (n,))))
         r_out, h, wall = scene.target_bowl
         r_in = r_out - wall - 0.25 * scene.dx
-        height = 2.0 * n * vol / (math.pi * r_in ** 2) + 2 * scene.dx
+        height = 2.0 * total / (math.pi * r_in ** 2) + 2 * scene.dx
         base = np.asarray(_target_pos(scene)) + np.array([0.0, 0.0, wall])
         pts, _ = sampling.cylinder(base, r_in, height, scene.dx, ppc=scene.ppc, seed=0,
                                    jitter=0.0)
