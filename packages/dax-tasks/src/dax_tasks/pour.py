@@ -14,18 +14,25 @@ whole domain is simulated (no moving window: spilled liquid may spread anywhere 
 * Pour-Water: water (weakly compressible fluid, ``bulk_modulus`` 2e4 Pa, rho 1000 kg/m^3)
   fills the source cavity to ``fill_height`` = 2.5 cm: 476 particles at 8 per cell.
 * Pour-Soup: water to 2 cm plus ``n_chunks`` = 3 stiff elastic cubes (tofu-like,
-  fixed-corotated, E = 2e4 Pa, nu = 0.3, rho 1050 kg/m^3) of side 1.5 cm (27 particles
-  each) replacing the water where they sit; 285 water + 81 chunk particles. E is chosen so
-  the P-wave speed (5.1 m/s) stays near water's (4.5 m/s) and the step does not shrink;
-  a chunk's strain under its own weight is below 1 %.
+  fixed-corotated, E = 2e4 Pa, nu = 0.3, rho 1050 kg/m^3) of side 1.5 cm (8 particles
+  each, sharing the cube's volume) replacing the water where they sit; at 4 particles per
+  cell, 139 water + 24 chunk particles. E is chosen so the P-wave speed (5.1 m/s) stays
+  near water's (4.5 m/s) and the step does not shrink; a chunk's strain under its own
+  weight is below 1 %. Why 4 particles per cell (8 until 2026-11-25, 366 particles): in
+  the resolution study (``python -m dax_tasks.bench resolution --task pour_soup``) every
+  rung at 1 cm cells with 8 or 16 particles per cell ends its pour at r_gt 0.91-0.92,
+  while 2 or 4 per cell and both fine rungs (5 mm cells, 4 or 8 per cell) end at
+  0.98-1.00; with 4 the particle clouds are also nearer the fine rungs' (5.0 against
+  5.3 mm mean Chamfer distance, seeds 0-1, either fine rung) at 0.75-0.9x the CPU time.
 * The materials (:data:`WATER`, :data:`CHUNK`) and the bowls' friction (0.2) are
   ``params.physics`` (a :class:`dax_physics.MaterialParams`: material 0 water, material 1
   the chunks), so viscosity, bulk modulus or friction can be changed, batched or
   differentiated without recompiling.
 
 Speed (batch 1, 2-core CPU, ``python -m dax_tasks.bench --tasks pour_water,pour_soup
---batch 1``): 0.019 s (water) and 0.026 s (soup) per environment step, 0.07 s / 0.13 s
-with the action gradient (DaXBench Pour-Water: 0.13 s per step, 0.78 s for its gradient).
+--batch 1``): 0.019 s (water) and 0.026 s (soup at 8 particles per cell; 0.028 s at 4,
+measured at load 2) per environment step, 0.07 s / 0.13 s (0.15 s) with the action
+gradient (DaXBench Pour-Water: 0.13 s per step, 0.78 s for its gradient).
 Each bowl collider is evaluated only on the node cube around it (3.4k and 4.9k of the
 22.8k nodes; ``dax_physics.colliders.apply_colliders_grid``); evaluated on every node
 they took 92 % of a substep (0.22 s per step).
@@ -61,10 +68,11 @@ For the soup the chunks' particles count like water's (the ingredients must go t
 λ = 20 /m: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
 about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
 scripted expert ends a Pour-Water episode at 0.877 +- 0.004 (seeds 0-19, dax-physics 0.3;
-the rest splashed onto the table) and a Pour-Soup episode at 0.934 +- 0.002, random actions
-at 0.342 +- 0.011 and 0.214 +- 0.017 (``dax-bench run --tasks pour_water,pour_soup
---methods random,expert --seeds 20 --quick``; with the target bowl fixed: 0.871, 0.914,
-0.341, 0.208). With dax-physics 0.2 they were
+the rest splashed onto the table) and a Pour-Soup episode at 0.990 +- 0.002 (0.934 +- 0.002
+at 8 particles per cell), random actions at 0.342 +- 0.011 and 0.196 +- 0.013
+(``dax-bench run --tasks pour_water,pour_soup --methods random,expert --seeds 20
+--quick``; with the target bowl fixed and 8 particles per cell: 0.871, 0.914, 0.341,
+0.208). With dax-physics 0.2 they were
 0.950, 1.0, 0.15 and 0.13: its water held together by tension (negative pressure), splashed
 less and rested a cell below the table (so spilled water counted 1.1 cm further from the
 cavity); water without tension splashes more.
@@ -367,7 +375,8 @@ def _spec(name: str, scene: PourScene, substeps: int) -> TaskSpec:
 
 
 POUR_WATER = _spec("pour_water", PourScene(), 30)
-POUR_SOUP = _spec("pour_soup", PourScene(dt=0.025 / 36, fill_height=0.02, n_chunks=3), 36)
+POUR_SOUP = _spec("pour_soup", PourScene(dt=0.025 / 36, fill_height=0.02, n_chunks=3, ppc=4),
+                  36)
 #: The original benchmark's resolution (``make(name, resolution="reference")``).
 #: Pour-Water: its 702 particles (``ppc`` 11 for 8: 690); its 23 substeps per 25 ms step
 #: would exceed this fluid's stable dt (0.84 ms), so the default's 30 stay; the whole

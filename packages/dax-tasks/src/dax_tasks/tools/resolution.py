@@ -352,7 +352,15 @@ def ladder(name: str, scale_contact: bool = False) -> list:
     refines)."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
-    if name in ("pour_water", "pour_soup"):
+    if name == "pour_soup":  # its default has 4 particles per cell (chosen by this study)
+        rungs = [
+            _mpm_rung(name, "dx 10 mm, ppc 2", "half the default's particles", ppc=2),
+            _mpm_rung(name, "dx 10 mm, ppc 4 (default)", "the default"),
+            _mpm_rung(name, "dx 10 mm, ppc 8", "twice the particles", ppc=8),
+            _mpm_rung(name, "dx 5 mm, ppc 4 (fine)", "grid and particle spacing halved",
+                      dx=0.005, fine=True),
+        ]
+    elif name == "pour_water":
         rungs = [
             _mpm_rung(name, "dx 10 mm, ppc 4", "half the default's particles", ppc=4),
             _mpm_rung(name, "dx 10 mm, ppc 8 (default)", "the default"),
