@@ -22,17 +22,19 @@ whole domain is simulated (no moving window: spilled liquid may spread anywhere 
   the resolution study (``python -m dax_tasks.bench resolution --task pour_soup``) every
   rung at 1 cm cells with 8 or 16 particles per cell ends its pour at r_gt 0.91-0.92,
   while 2 or 4 per cell and both fine rungs (5 mm cells, 4 or 8 per cell) end at
-  0.98-1.00; with 4 the particle clouds are also nearer the fine rungs' (5.0 against
-  5.3 mm mean Chamfer distance, seeds 0-1, either fine rung) at 0.75-0.9x the CPU time.
+  0.98-1.00; with 4 the particle clouds are also nearer the fine rungs' (4.7-5.1 against
+  5.2-5.3 mm mean Chamfer distance, seeds 0-1, either fine rung) at 0.75-0.9x the CPU
+  time.
 * The materials (:data:`WATER`, :data:`CHUNK`) and the bowls' friction (0.2) are
   ``params.physics`` (a :class:`dax_physics.MaterialParams`: material 0 water, material 1
   the chunks), so viscosity, bulk modulus or friction can be changed, batched or
   differentiated without recompiling.
 
 Speed (batch 1, 2-core CPU, ``python -m dax_tasks.bench --tasks pour_water,pour_soup
---batch 1``): 0.019 s (water) and 0.026 s (soup at 8 particles per cell; 0.028 s at 4,
-measured at load 2) per environment step, 0.07 s / 0.13 s (0.15 s) with the action
-gradient (DaXBench Pour-Water: 0.13 s per step, 0.78 s for its gradient).
+--batch 1``): 0.019 s (water) and 0.026 s (soup, measured at 8 particles per cell; at 4
+per cell a step takes 0.88x as long, 0.0207 against 0.0235 s interleaved in one process)
+per environment step, 0.07 s / 0.13 s with the action gradient (DaXBench Pour-Water:
+0.13 s per step, 0.78 s for its gradient).
 Each bowl collider is evaluated only on the node cube around it (3.4k and 4.9k of the
 22.8k nodes; ``dax_physics.colliders.apply_colliders_grid``); evaluated on every node
 they took 92 % of a substep (0.22 s per step).
