@@ -390,8 +390,7 @@ def ladder(name: str, scale_contact: bool = False) -> list:
             cloth("3.5 cm mesh", "coarser mesh", spacing=0.035),
             cloth("2.5 cm mesh (default)", "the default"),
             cloth("1.875 cm mesh", "mesh spacing x 0.75", spacing=0.01875),
-            cloth("1.25 cm mesh (fine)", "mesh spacing halved", fine=True,
-                        spacing=0.0125),
+            cloth("1.25 cm mesh (fine)", "mesh spacing halved", fine=True, spacing=0.0125),
         ]
     else:  # the square cloths
         cloth = functools.partial(_cloth_rung, name, scale_contact=scale_contact)
