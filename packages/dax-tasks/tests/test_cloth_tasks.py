@@ -186,34 +186,6 @@ def test_fold_tasks_leave_a_step_after_their_folds():
         assert spec.horizon > n, f"{name}: horizon {spec.horizon}, {n} folds"
 
 
-def _heights_over_points(x, faces, p):
-    """For table points ``p`` (P, 1, 2+) and every triangle of the cloth ``x`` (faces (F, 3)):
-    the height of the triangle above each point (P, F) and whether the triangle's
-    table-plane projection contains the point (barycentric weights all >= 0; a triangle
-    seen edge-on contains nothing)."""
-    a, b, c = (x[faces[:, k]] for k in range(3))
-    det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
-    det = np.where(np.abs(det) > 1e-12, det, np.nan)
-    l1 = ((b[:, 1] - c[:, 1]) * (p[..., 0] - c[:, 0])
-          + (c[:, 0] - b[:, 0]) * (p[..., 1] - c[:, 1])) / det
-    l2 = ((c[:, 1] - a[:, 1]) * (p[..., 0] - c[:, 0])
-          + (a[:, 0] - c[:, 0]) * (p[..., 1] - c[:, 1])) / det
-    l3 = 1.0 - l1 - l2
-    inside = (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
-    return l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2], inside
-
-
-def _layer_gaps(x, faces, rest, exclude):
-    """Vertical gaps [m] between the cloth's layers: for every vertex and every triangle
-    whose table-plane projection contains it (and whose corners are all farther than
-    ``exclude`` from it on the rest mesh, so a crease's own neighbours do not count), the
-    height of the vertex over or under the triangle at that point."""
-    p = x[:, None, :]
-    z, inside = _heights_over_points(x, faces, p)
-    far = np.min(np.linalg.norm(rest[faces][None] - rest[:, None, None], axis=-1), -1) > exclude
-    return np.abs(p[..., 2] - z)[inside & far]
-
-
 @pytest.mark.parametrize("self_collision", [True, False])
 def test_folded_layers_stay_apart_only_with_self_collision(self_collision):
     """One expert fold of Fold-Cloth-1 (a corner onto the opposite one) from a random start
@@ -227,7 +199,7 @@ def test_folded_layers_stay_apart_only_with_self_collision(self_collision):
     _, state = task.reset(jax.random.PRNGKey(2))
     _, state, *_ = task.step(state, task.expert_action(state))
     rest, faces = _cloth.flat_vertices(scene), np.asarray(task.env.base_cloth.faces)
-    gaps = _layer_gaps(np.asarray(state.physics.x), faces, rest, 3.01 * scene.mesh_spacing)
+    gaps = _cloth.layer_gaps(np.asarray(state.physics.x), faces, rest, 3.01 * scene.mesh_spacing)
     assert len(gaps) > 20, f"expected a folded cloth with overlapping layers, {len(gaps)}"
     if self_collision:
         assert gaps.min() > h / 3, (f"layers closer than h/3 = {h / 3:.3f} m: smallest gap "
@@ -242,7 +214,7 @@ def _separated_layers(x, faces, gap):
     lo, hi = x[:, :2].min(0), x[:, :2].max(0)
     g = np.stack(np.meshgrid(np.arange(lo[0], hi[0], 0.005), np.arange(lo[1], hi[1], 0.005)),
                  -1).reshape(-1, 1, 2)
-    z, inside = _heights_over_points(x, faces, g)
+    z, inside = _cloth.heights_over_points(x, faces, g)
     z = np.where(inside, z, np.nan)
     layers = []
     for heights in z:
@@ -264,6 +236,6 @@ def test_unfold_cloth3_starts_with_three_separated_layers():
     faces = np.asarray(_cloth._cloth_np(scene)[1])
     area = 25e-6 * np.sum(_separated_layers(x, faces, h / 3) >= 3)
     assert area >= 50e-4, f"three layers h/3 apart over {area * 1e4:.0f} cm^2, expected >= 50"
-    gaps = _layer_gaps(x, faces, _cloth.flat_vertices(scene), 3.01 * scene.mesh_spacing)
+    gaps = _cloth.layer_gaps(x, faces, _cloth.flat_vertices(scene), 3.01 * scene.mesh_spacing)
     apart = float(np.mean(gaps > h / 3))
     assert apart >= 0.85, f"only {apart:.0%} of {len(gaps)} overlaps are h/3 apart"

@@ -121,6 +121,7 @@ def test_tiny_study_runs_with_zero_error_only_at_the_reference(tmp_path):
         for key in ("step_cpu_s", "step_wall_s", "error_mean", "error_max", "final_r_gt"):
             assert math.isfinite(r[key]), (r["label"], key, r[key])
         assert r["finite"] and r["object_points"] == int(r["label"][0]) ** 2
+        assert 0.0 <= r["layer_gap_under_1mm"] <= 1.0 and r["layer_overlaps"] >= 0
     assert fine["error_mean"] == 0.0 and fine["error_max"] == 0.0 and fine["score_diff"] == 0.0
     # both start as the same flat cloth at the same pose: no error at t = 0, some after
     assert coarse["error_t0"] < 1e-6, coarse["error_t0"]

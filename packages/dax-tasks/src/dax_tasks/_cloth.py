@@ -384,6 +384,36 @@ def flat_vertices(scene: ClothScene) -> np.ndarray:
     return np.asarray(_cloth_np(scene)[0], np.float32)
 
 
+def heights_over_points(x, faces, p):
+    """For table points ``p`` (P, 1, 2+) and every triangle of the cloth ``x`` (faces (F, 3)):
+    the height of the triangle above each point (P, F) and whether the triangle's
+    table-plane projection contains the point (barycentric weights all >= 0; a triangle
+    seen edge-on contains nothing)."""
+    a, b, c = (x[faces[:, k]] for k in range(3))
+    det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    det = np.where(np.abs(det) > 1e-12, det, np.nan)
+    l1 = ((b[:, 1] - c[:, 1]) * (p[..., 0] - c[:, 0])
+          + (c[:, 0] - b[:, 0]) * (p[..., 1] - c[:, 1])) / det
+    l2 = ((c[:, 1] - a[:, 1]) * (p[..., 0] - c[:, 0])
+          + (a[:, 0] - c[:, 0]) * (p[..., 1] - c[:, 1])) / det
+    l3 = 1.0 - l1 - l2
+    inside = (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
+    return l1 * a[:, 2] + l2 * b[:, 2] + l3 * c[:, 2], inside
+
+
+def layer_gaps(x, faces, rest, exclude):
+    """Vertical gaps [m] between the cloth's layers: for every vertex and every triangle
+    whose table-plane projection contains it (and whose corners are all farther than
+    ``exclude`` from it on the rest mesh, so a crease's own neighbours do not count), the
+    height of the vertex over or under the triangle at that point (NumPy, host side; used
+    by the tests and the resolution study to tell layers lying apart from layers that
+    pass through each other)."""
+    p = x[:, None, :]
+    z, inside = heights_over_points(x, faces, p)
+    far = np.min(np.linalg.norm(rest[faces][None] - rest[:, None, None], axis=-1), -1) > exclude
+    return np.abs(p[..., 2] - z)[inside & far]
+
+
 def rigid_pose(key, scene: ClothScene, x):
     """``x`` rotated about the vertical axis through the table centre by a heading uniform
     in ``±rotation_range``, then shifted in the table plane by a uniform draw over the

@@ -455,6 +455,7 @@ def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
     spec = env.spec
     scene = spec.scene
     return {
+        **_layer_record(name, env, state),
         "label": rung.label, "note": rung.note, "is_default": rung.is_default,
         "is_fine": rung.is_fine, "spacing_m": rung.spacing,
         "object_points": int(env.n_object_points), "substeps": spec.substeps,
@@ -465,6 +466,25 @@ def run_rung(name: str, rung: Rung, seed: int = 0, steps: int | None = None,
         "finite": bool(np.all(np.isfinite(np.asarray(points[-1])))),
         "_points": points, "_actions": taken,
     }
+
+
+def _layer_record(name: str, env, state) -> dict:
+    """Cloth: whether the final state's layers lie apart (``_cloth.layer_gaps``: the
+    vertical gap of every vertex to each triangle of another layer above or below it)
+    as ``layer_overlaps`` (how many such vertex-triangle pairs), ``layer_gap_min_m`` and
+    ``layer_gap_under_1mm`` (the share of them closer than 1 mm: layers passing through
+    each other, as when the thickness is below the mesh spacing). Empty for the others."""
+    if PROBE_KINDS[name] != "mesh":
+        return {}
+    from .. import _cloth
+
+    scene = env.spec.scene
+    gaps = _cloth.layer_gaps(np.asarray(env.object_points(state.physics)),
+                             np.asarray(env.base_cloth.faces), _cloth.flat_vertices(scene),
+                             3.01 * scene.mesh_spacing)
+    return {"layer_overlaps": int(len(gaps)),
+            "layer_gap_min_m": float(gaps.min()) if len(gaps) else None,
+            "layer_gap_under_1mm": float(np.mean(gaps < 1e-3)) if len(gaps) else 0.0}
 
 
 def _scene_summary(scene) -> dict:
@@ -694,8 +714,8 @@ def main(argv=None) -> dict:
     if result.get("chaos_floor"):
         summary["chaos_floor_error_mean"] = result["chaos_floor"]["error_mean"]
     summary["rungs"] = [{k: r[k] for k in ("label", "step_cpu_s", "error_mean", "error_max",
-                                            "final_r_gt", "score_diff")}
-                        for r in result["rungs"]]
+                                            "final_r_gt", "score_diff", "layer_gap_under_1mm")
+                         if k in r} for r in result["rungs"]]
     print(json.dumps(summary), flush=True)
     return result
 
