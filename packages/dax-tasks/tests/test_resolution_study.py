@@ -156,6 +156,25 @@ def test_replay_mode_drives_every_rung_with_the_defaults_actions():
         res.study("fold_cloth1", [coarse], mode="open")
 
 
+def test_rungs_whose_layers_pass_through_each_other_are_off_the_front():
+    """A faster, nearer rung whose layers pass through each other does not push the
+    default off the front; without the layer record it would."""
+    def rec(label, t, e, through=None, default=False):
+        r = {"label": label, "step_cpu_s": t, "error_mean": e, "error_max": e,
+             "score_diff": 0.0, "is_default": default}
+        if through is not None:
+            r["layer_gap_under_1mm"] = through
+        return r
+    recs = [rec("coarse", 0.02, 0.024, 0.48), rec("default", 0.05, 0.031, 0.0, True),
+            rec("fine", 1.2, 0.0, 0.0)]
+    assert not res.valid(recs[0]) and res.valid(recs[1])
+    assert res.pareto(recs) == [1, 2]
+    out = res.verdict(recs)
+    assert out["default_on_front"] and out["invalid"] == ["coarse"]
+    recs[0].pop("layer_gap_under_1mm")  # MPM rungs have no layer record: all valid
+    assert res.pareto(recs) == [0, 2] and not res.verdict(recs)["default_on_front"]
+
+
 def test_bench_resolution_subcommand_refuses_an_unknown_task(capsys, tmp_path):
     with pytest.raises(SystemExit) as exc:
         bench.main(["resolution", "--task", "fold_origami", "--out", str(tmp_path)])

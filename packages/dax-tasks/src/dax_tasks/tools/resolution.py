@@ -55,7 +55,10 @@ makes), the mean over the steps of ``|D - D_fine|`` (``distance_diff_mean`` [m])
 the CPU time (``step_cpu_s``, the process's time, steadier on a shared machine) and wall
 time (``step_wall_s``) per env step: medians over the episode's steps after an
 ahead-of-time compile. A rung is on the Pareto front when no other rung is at
-once no slower and no less accurate, and better in one of the two.
+once no slower and no less accurate, and better in one of the two. Rungs whose physics
+fails are left off the front (:func:`valid`): a cloth rung whose layers pass through each
+other at the end (its thickness below its mesh spacing lets a vertex slip through the
+other layer's triangles) is listed under ``invalid`` in the JSON and crossed on the chart.
 """
 
 from __future__ import annotations
@@ -84,6 +87,9 @@ ROPE_KERNEL = 0.02
 ROPE_POINTS = 25
 #: The chaos floor's start perturbation [m] (see :func:`study`).
 FLOOR_SHIFT = 1e-5
+#: A cloth rung with more than this share of its overlapping vertices within 1 mm of
+#: another layer at the end has layers passing through each other (:func:`valid`).
+LAYER_FAIL_SHARE = 0.05
 #: How the rungs are driven (see :func:`study`).
 STUDY_MODES = ("closed", "replay")
 #: Fraction of the largest stable substep (the bound each task checks itself; the cloth's
@@ -528,15 +534,26 @@ def compare(name: str, records: list) -> list:
     return out
 
 
+def valid(record: dict) -> bool:
+    """Whether a rung's physics holds: a cloth rung whose layers pass through each other
+    (more than :data:`LAYER_FAIL_SHARE` of its overlapping vertices within 1 mm of another
+    layer at the end) is not a point of the speed-accuracy trade-off, however near the fine
+    rung it lies. Other rungs are valid."""
+    return record.get("layer_gap_under_1mm", 0.0) <= LAYER_FAIL_SHARE
+
+
 def pareto(records: list, time_key: str = "step_cpu_s", error_key: str = "error_mean"):
-    """Indices of the records on the Pareto front of (time, error), both lower-better: no
-    other record is at once no slower and no less accurate and better in one of them."""
+    """Indices of the valid records (:func:`valid`) on the Pareto front of (time, error),
+    both lower-better: no other valid record is at once no slower and no less accurate
+    and better in one of them."""
     front = []
     for i, a in enumerate(records):
+        if not valid(a):
+            continue
         dominated = any(
             b[time_key] <= a[time_key] and b[error_key] <= a[error_key]
             and (b[time_key] < a[time_key] or b[error_key] < a[error_key])
-            for j, b in enumerate(records) if j != i)
+            for j, b in enumerate(records) if j != i and valid(b))
         if not dominated:
             front.append(i)
     return front
@@ -552,10 +569,11 @@ def verdict(records: list, time_key: str = "step_cpu_s") -> dict:
     d = records[i]
     out = {"default_on_front": i in front, "default_label": d["label"],
            "default_error_mean_m": d["error_mean"], "default_error_max_m": d["error_max"],
-           "default_score_diff": d["score_diff"], "front": [records[k]["label"] for k in front]}
-    if i not in front:
-        dom = [r for k, r in enumerate(records) if k != i and r[time_key] <= d[time_key]
-               and r["error_mean"] <= d["error_mean"]]
+           "default_score_diff": d["score_diff"], "front": [records[k]["label"] for k in front],
+           "invalid": [r["label"] for r in records if not valid(r)]}
+    if i not in front and valid(d):
+        dom = [r for k, r in enumerate(records) if k != i and valid(r)
+               and r[time_key] <= d[time_key] and r["error_mean"] <= d["error_mean"]]
         best = min(dom, key=lambda r: r[time_key])
         out["dominated_by"] = {
             "label": best["label"], "time_ratio": best[time_key] / d[time_key],
@@ -646,6 +664,9 @@ def chart(result: dict, path: str) -> bool:
     for k, r in enumerate(recs):
         ax.annotate(r["label"], (t[k], e[k]), fontsize=7,  # staggered: rungs may be close
                     xytext=(4, (-10, 4, -22, 16)[k % 4]), textcoords="offset points")
+        if not valid(r):
+            ax.scatter([t[k]], [e[k]], s=90, marker="x", c="tab:gray", zorder=4,
+                       label="layers pass through each other")
         if r["is_default"]:
             ax.scatter([t[k]], [e[k]], s=160, facecolors="none", edgecolors="tab:red",
                        zorder=4, label="default")
