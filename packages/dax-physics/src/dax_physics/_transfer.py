@@ -43,6 +43,12 @@ _IN_BOUNDS = jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
 HIGHEST = jax.lax.Precision.HIGHEST
 
 
+def mm(a, b):
+    """``a @ b`` at full float32 precision (:data:`HIGHEST`): the one spelling of a matrix
+    product in the solvers (``jnp.einsum`` calls pass ``precision=HIGHEST`` themselves)."""
+    return jnp.matmul(a, b, precision=HIGHEST)
+
+
 def stencil_weights(w):
     """(N, 27) weights ``W_o`` from the per-axis weights ``w`` (N, 3, 3), one fused loop."""
     n = w.shape[0]
@@ -85,8 +91,7 @@ def _moments(G, W):
     (written as sums, each of the 16 moments re-read the block in its own fused loop)."""
     n, c = G.shape[0], G.shape[-1]
     wg = (W[:, :, None] * G).reshape(n, 27 * c)
-    return jnp.matmul(wg, jnp.asarray(_kron_moments(c), G.dtype),
-                      precision=HIGHEST).reshape(n, 4, c)
+    return mm(wg, jnp.asarray(_kron_moments(c), G.dtype)).reshape(n, 4, c)
 
 
 @functools.cache
@@ -136,8 +141,7 @@ def materialise(a):
     per particle; ``lax.optimization_barrier`` does not stop that on CPU, an identity
     matmul (a library call, never fused) does."""
     c = a.shape[-1]
-    return jnp.matmul(a.reshape(-1, c), jnp.eye(c, dtype=a.dtype),
-                      precision=HIGHEST).reshape(a.shape)
+    return mm(a.reshape(-1, c), jnp.eye(c, dtype=a.dtype)).reshape(a.shape)
 
 
 def _spread_bwd(window, res, dgrid):

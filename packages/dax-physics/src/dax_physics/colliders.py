@@ -47,15 +47,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._pytree import pytree_dataclass
+from ._transfer import mm as _mm
 
 SHAPES = {"plane": 0, "box": 3, "sphere": 1, "capsule": 2, "cylinder": 2, "bowl": 3}
 MODES = ("sticky", "slip", "separate")
 _EPS = 1e-12
-
-
-def _mm(a, b):
-    """``a @ b`` at full float32 precision (no TF32 rounding on GPUs)."""
-    return jnp.matmul(a, b, precision=jax.lax.Precision.HIGHEST)
 
 
 @dataclasses.dataclass(frozen=True)

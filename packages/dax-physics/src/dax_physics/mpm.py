@@ -707,8 +707,7 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     # with its input on CPU and was as slow).
     masses = [m] if drive is None else [m, m * jnp.asarray(drive[0], dtype)]  # 5th channel
     entries = b + [dx * A[c][a] for a in range(3) for c in range(3)] + masses
-    entries = list(jnp.matmul(jnp.eye(len(entries), dtype=dtype), jnp.stack(entries),
-                              precision=_transfer.HIGHEST))
+    entries = list(_transfer.mm(jnp.eye(len(entries), dtype=dtype), jnp.stack(entries)))
     b, dxA, masses = entries[:3], entries[3:12], entries[12:]
     zeros = [jnp.zeros_like(m)] * len(masses)
     R = jnp.stack([jnp.stack(b + masses, axis=-1)]
@@ -860,7 +859,7 @@ def grasp(cfg: MPMConfig, state: MPMState, index: int, radius: float) -> MPMStat
     phi, _ = col.sdf(spec, cs.pos[index], cs.quat[index], state.x)
     take = (phi < radius) & (state.held < 0)
     R = col.quat_to_matrix(cs.quat[index])
-    local = jnp.matmul(state.x - cs.pos[index], R, precision=_transfer.HIGHEST)
+    local = _transfer.mm(state.x - cs.pos[index], R)
     return state.replace(held=jnp.where(take, index, state.held),
                          held_offset=jnp.where(take[:, None], local, state.held_offset))
 
