@@ -349,6 +349,31 @@ def _cloth_rung(name, label, note, fine=False, scale_contact=False, **scene_chan
                 is_fine=fine)
 
 
+def _mpm_ladder(name: str, between: str) -> list:
+    """An MPM task's four rungs around its default (``dx``, ``ppc``): half the particles
+    per cell; the default; ``between`` = ``"particles"`` (twice the particles per cell) or
+    ``"grid"`` (grid and particle spacing x 0.8); the fine rung (the cell halved, the
+    particles per cell kept). Labels are read off the scenes, so they follow the default."""
+    scene = get_spec(name).scene
+    dx, ppc = scene.dx, scene.ppc
+
+    def label(d, p, tag=""):
+        return f"dx {1e3 * d:g} mm, ppc {p}{tag}"
+
+    if between == "particles":
+        middle = _mpm_rung(name, label(dx, 2 * ppc), "twice the particles", ppc=2 * ppc)
+    else:
+        d = round(0.8 * dx, 9)
+        middle = _mpm_rung(name, label(d, ppc), "grid and particle spacing x 0.8", dx=d)
+    return [
+        _mpm_rung(name, label(dx, ppc // 2), "half the default's particles", ppc=ppc // 2),
+        _mpm_rung(name, label(dx, ppc, " (default)"), "the default"),
+        middle,
+        _mpm_rung(name, label(dx / 2, ppc, " (fine)"), "grid and particle spacing halved",
+                  dx=dx / 2, fine=True),
+    ]
+
+
 def ladder(name: str, scale_contact: bool = False) -> list:
     """The rungs of task ``name``, coarse to fine; the last is the fine reference (twice
     as fine as the default in spacing: grid and particles, or mesh). ``scale_contact``
@@ -358,38 +383,10 @@ def ladder(name: str, scale_contact: bool = False) -> list:
     refines)."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
-    if name == "pour_soup":  # its default has 4 particles per cell (chosen by this study)
-        rungs = [
-            _mpm_rung(name, "dx 10 mm, ppc 2", "half the default's particles", ppc=2),
-            _mpm_rung(name, "dx 10 mm, ppc 4 (default)", "the default"),
-            _mpm_rung(name, "dx 10 mm, ppc 8", "twice the particles", ppc=8),
-            _mpm_rung(name, "dx 5 mm, ppc 4 (fine)", "grid and particle spacing halved",
-                      dx=0.005, fine=True),
-        ]
-    elif name == "pour_water":
-        rungs = [
-            _mpm_rung(name, "dx 10 mm, ppc 4", "half the default's particles", ppc=4),
-            _mpm_rung(name, "dx 10 mm, ppc 8 (default)", "the default"),
-            _mpm_rung(name, "dx 10 mm, ppc 16", "twice the particles", ppc=16),
-            _mpm_rung(name, "dx 5 mm, ppc 8 (fine)", "grid and particle spacing halved",
-                      dx=0.005, fine=True),
-        ]
-    elif name == "push_rope":
-        rungs = [
-            _mpm_rung(name, "dx 10 mm, ppc 4", "half the default's particles", ppc=4),
-            _mpm_rung(name, "dx 10 mm, ppc 8 (default)", "the default"),
-            _mpm_rung(name, "dx 8 mm, ppc 8", "grid and particle spacing x 0.8", dx=0.008),
-            _mpm_rung(name, "dx 5 mm, ppc 8 (fine)", "grid and particle spacing halved",
-                      dx=0.005, fine=True),
-        ]
-    elif name == "whip_rope":
-        rungs = [
-            _mpm_rung(name, "dx 12.5 mm, ppc 4", "half the default's particles", ppc=4),
-            _mpm_rung(name, "dx 12.5 mm, ppc 8 (default)", "the default"),
-            _mpm_rung(name, "dx 10 mm, ppc 8", "grid and particle spacing x 0.8", dx=0.01),
-            _mpm_rung(name, "dx 6.25 mm, ppc 8 (fine)", "grid and particle spacing halved",
-                      dx=0.00625, fine=True),
-        ]
+    if name in ("pour_water", "pour_soup"):  # the middle rung: twice the particles
+        rungs = _mpm_ladder(name, between="particles")
+    elif name in ("push_rope", "whip_rope"):  # the middle rung: a finer grid
+        rungs = _mpm_ladder(name, between="grid")
     elif name == "fold_tshirt":
         cloth = functools.partial(_cloth_rung, name, scale_contact=scale_contact)
         rungs = [
