@@ -2,9 +2,9 @@
 
 A regular n x m vertex grid with the 12-neighbour spring pattern of the standard
 cloth-drop benchmark (structural (1,0),(0,1); shear (1,1),(1,-1); bending "two apart"
-(2,0),(0,2)) needs no index tables: every spring family is a pair of shifted slices of
-the grid, so one substep is a handful of fused element-wise XLA loops and many substeps
-run inside one jitted ``lax.scan``.
+(2,0),(0,2)) needs no index tables: every spring is a shifted slice of the grid, so
+a substep's forces are one fused element-wise XLA loop and many substeps run inside one
+jitted ``lax.scan``.
 
 Layout: positions and velocities are stored component-major, ``(3, n, m)`` [m], [m/s],
 so the grid axes are the contiguous, vectorised ones. :func:`to_vertices` and
@@ -135,24 +135,35 @@ def grid_rest_lengths(x0_vertices, n, m):
 
 
 def grid_forces(cfg: GridClothConfig, cloth: GridCloth, x, v):
-    """Spring + dashpot forces [N] on every vertex, (3, n, m)."""
+    """Spring + dashpot forces [N] on every vertex, (3, n, m).
+
+    Each vertex sums its own (up to) 12 springs from shifted slices of the positions and
+    velocities padded by two: every spring is evaluated once from each end (the two
+    forces are exact negatives of each other, as ``d`` and ``d_hat`` change sign), and
+    the whole sum is one fused loop over the vertices. Evaluating each spring once and
+    padding its force back to both ends took 12 loops plus two sums: 2x slower."""
     n, m = cfg.n, cfg.m
-    f = jnp.zeros_like(x)
+    p = 2  # the longest spring spans two vertices
+    xp, vp = (jnp.pad(a, ((0, 0), (p, p), (p, p))) for a in (x, v))
+    f = [0.0, 0.0, 0.0]
     for (di, dj, fam), rest in zip(GRID_DIRECTIONS, cloth.rest, strict=True):
-        a, b = _pair_slices(n, m, di, dj)
-        sa, sb = (slice(None),) + a, (slice(None),) + b
-        d = x[sb] - x[sa]
-        ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        inv = 1.0 / jnp.maximum(ln, 1e-12)
-        dv = v[sb] - v[sa]
-        s = cfg.stiffness(fam) * (ln - rest) + cfg.damping * (
-            dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv
-        fa = (s * inv)[None] * d  # force on the a end, towards b
-        # scatter-free accumulation: pad each contribution back to the full grid
-        pa = ((0, 0), (0, di), (max(0, -dj), max(0, dj)))
-        pb = ((0, 0), (di, 0), (max(0, dj), max(0, -dj)))
-        f = f + jnp.pad(fa, pa) - jnp.pad(fa, pb)
-    return f
+        k = cfg.stiffness(fam)
+        # the spring seen from its a end (towards +o) and from its b end (towards -o);
+        # the rest length and a 0/1 "has this spring" mask padded to the vertex grid
+        for sign, pad in ((1, ((0, di), (max(0, -dj), max(0, dj)))),
+                          (-1, ((di, 0), (max(0, dj), max(0, -dj))))):
+            L = jnp.pad(rest, pad)
+            has = jnp.pad(jnp.ones(rest.shape, x.dtype), pad)
+            near = (slice(None), slice(p + sign * di, p + sign * di + n),
+                    slice(p + sign * dj, p + sign * dj + m))
+            d = [xp[near][q] - x[q] for q in range(3)]
+            dv = [vp[near][q] - v[q] for q in range(3)]
+            ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            inv = 1.0 / jnp.maximum(ln, 1e-12)
+            s = has * (k * (ln - L) + cfg.damping * (
+                dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv)
+            f = [f[q] + (s * inv) * d[q] for q in range(3)]
+    return jnp.stack(f)
 
 
 def grid_step(cfg: GridClothConfig, cloth: GridCloth, state: GridState) -> GridState:
