@@ -26,11 +26,13 @@ colliders, self-collision and grasping.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _transfer
 from .._pytree import pytree_dataclass
 
 #: The six unique neighbour directions (di, dj) and their spring family.
@@ -134,6 +136,98 @@ def grid_rest_lengths(x0_vertices, n, m):
     return GridCloth(tuple(jnp.asarray(r) for r in out))
 
 
+def _neighbours(cfg: GridClothConfig, cloth: GridCloth, dtype):
+    """The 12 springs seen from a vertex: ``(k, (oi, oj), L, has)`` per neighbour offset,
+    with the rest length and a 0/1 "this vertex has that spring" mask on the vertex grid
+    (both ends of each direction: +o from its a end, -o from its b end)."""
+    out = []
+    for (di, dj, fam), rest in zip(GRID_DIRECTIONS, cloth.rest, strict=True):
+        for sign, pad in ((1, ((0, di), (max(0, -dj), max(0, dj)))),
+                          (-1, ((di, 0), (max(0, dj), max(0, -dj))))):
+            out.append((cfg.stiffness(fam), (sign * di, sign * dj), jnp.pad(rest, pad),
+                        jnp.pad(jnp.ones(rest.shape, dtype), pad)))
+    return out
+
+
+_PAD = 2  # the longest spring spans two vertices
+
+
+def _shifted(ap, o, n, m):
+    """``a[:, i + oi, j + oj]`` for every vertex, from ``ap`` padded by :data:`_PAD`."""
+    return ap[:, _PAD + o[0]:_PAD + o[0] + n, _PAD + o[1]:_PAD + o[1] + m]
+
+
+def _padded(a):
+    return jnp.pad(a, ((0, 0), (_PAD, _PAD), (_PAD, _PAD)))
+
+
+def _spring(cfg, k, L, has, d, dv):
+    """Unit vector u, length ln, 1/ln and the signed spring + dashpot force s along u."""
+    ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    inv = 1.0 / jnp.maximum(ln, 1e-12)
+    du = (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv
+    s = has * (k * (ln - L) + cfg.damping * du)
+    return ln, inv, du, s
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _forces(cfg, cloth, x, v):
+    n, m = cfg.n, cfg.m
+    xp, vp = _padded(x), _padded(v)
+    f = [0.0, 0.0, 0.0]
+    for k, o, L, has in _neighbours(cfg, cloth, x.dtype):
+        xs, vs = _shifted(xp, o, n, m), _shifted(vp, o, n, m)
+        d = [xs[q] - x[q] for q in range(3)]
+        _, inv, _, s = _spring(cfg, k, L, has, d, [vs[q] - v[q] for q in range(3)])
+        f = [f[q] + (s * inv) * d[q] for q in range(3)]
+    return jnp.stack(f)
+
+
+def _forces_fwd(cfg, cloth, x, v):
+    return _forces(cfg, cloth, x, v), (cloth, x, v)
+
+
+def _forces_bwd(cfg, res, g):
+    """Reverse mode by hand, gather-free like the forward. A spring (i, j = i + o) adds
+    F = s u to f_i and -F to f_j, so it sees the cotangent G = g_i - g_j through F alone:
+
+        dF/dd^T G  = (s / ln) (G - (G.u) u) + (G.u) ds/dd,  ds/dd = k u + c (dv - (dv.u) u) / ln
+        dF/ddv^T G = (G.u) c u,                             dF/dL^T G = -k (G.u)
+
+    (times the spring's mask), and d = x_j - x_i gives x_j +=, x_i -= the first. Seen from j
+    (offset -o) every term changes sign, so each vertex sums ``-dF/dd^T G`` over its own 12
+    springs, as the forward does. Autodiff of the forward transposed its 72 shifted slices
+    into padded cotangents: 7x slower than the forward."""
+    cloth, x, v = res
+    n, m = cfg.n, cfg.m
+    xp, vp, gp = _padded(x), _padded(v), _padded(g)
+    dx, dv_acc = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+    dL = []
+    for idx, (k, o, L, has) in enumerate(_neighbours(cfg, cloth, x.dtype)):
+        xs, vs, gs = (_shifted(a, o, n, m) for a in (xp, vp, gp))
+        d = [xs[q] - x[q] for q in range(3)]
+        dvv = [vs[q] - v[q] for q in range(3)]
+        ln, inv, du, s = _spring(cfg, k, L, has, d, dvv)
+        u = [d[q] * inv for q in range(3)]
+        G = [g[q] - gs[q] for q in range(3)]
+        Gu = G[0] * u[0] + G[1] * u[1] + G[2] * u[2]
+        for q in range(3):
+            ds_dd = has * (k * u[q] + cfg.damping * (dvv[q] - du * u[q]) * inv)
+            gd = s * inv * (G[q] - Gu * u[q]) + Gu * ds_dd
+            dx[q] = dx[q] - gd
+            dv_acc[q] = dv_acc[q] - Gu * has * cfg.damping * u[q]
+        if idx % 2 == 0:  # the +o view of a direction: its rest lengths, on the a ends
+            di, dj = o
+            a, _ = _pair_slices(n, m, di, dj)
+            dL.append((-k * has * Gu)[a])
+    # one multi-output loop: stacked, each component's fused loop redid all 12 springs
+    out = _transfer.materialise(tuple(dx) + tuple(dv_acc) + tuple(dL))
+    return GridCloth(tuple(out[6:])), jnp.stack(out[:3]), jnp.stack(out[3:6])
+
+
+_forces.defvjp(_forces_fwd, _forces_bwd)
+
+
 def grid_forces(cfg: GridClothConfig, cloth: GridCloth, x, v):
     """Spring + dashpot forces [N] on every vertex, (3, n, m).
 
@@ -141,29 +235,9 @@ def grid_forces(cfg: GridClothConfig, cloth: GridCloth, x, v):
     velocities padded by two: every spring is evaluated once from each end (the two
     forces are exact negatives of each other, as ``d`` and ``d_hat`` change sign), and
     the whole sum is one fused loop over the vertices. Evaluating each spring once and
-    padding its force back to both ends took 12 loops plus two sums: 2x slower."""
-    n, m = cfg.n, cfg.m
-    p = 2  # the longest spring spans two vertices
-    xp, vp = (jnp.pad(a, ((0, 0), (p, p), (p, p))) for a in (x, v))
-    f = [0.0, 0.0, 0.0]
-    for (di, dj, fam), rest in zip(GRID_DIRECTIONS, cloth.rest, strict=True):
-        k = cfg.stiffness(fam)
-        # the spring seen from its a end (towards +o) and from its b end (towards -o);
-        # the rest length and a 0/1 "has this spring" mask padded to the vertex grid
-        for sign, pad in ((1, ((0, di), (max(0, -dj), max(0, dj)))),
-                          (-1, ((di, 0), (max(0, dj), max(0, -dj))))):
-            L = jnp.pad(rest, pad)
-            has = jnp.pad(jnp.ones(rest.shape, x.dtype), pad)
-            near = (slice(None), slice(p + sign * di, p + sign * di + n),
-                    slice(p + sign * dj, p + sign * dj + m))
-            d = [xp[near][q] - x[q] for q in range(3)]
-            dv = [vp[near][q] - v[q] for q in range(3)]
-            ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            inv = 1.0 / jnp.maximum(ln, 1e-12)
-            s = has * (k * (ln - L) + cfg.damping * (
-                dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv)
-            f = [f[q] + (s * inv) * d[q] for q in range(3)]
-    return jnp.stack(f)
+    padding its force back to both ends took 12 loops plus two sums: 2x slower. The
+    reverse mode is written the same way (:func:`_forces_bwd`)."""
+    return _forces(cfg, cloth, x, v)
 
 
 def grid_step(cfg: GridClothConfig, cloth: GridCloth, state: GridState) -> GridState:
