@@ -6,8 +6,8 @@ w[o_z, 2]`` built from the per-axis weights ``w`` (N, 3 offsets, 3 axes). The va
 move are affine in the offset: a particle's rows ``R`` (N, 4, C) stand for the node values
 ``U_o = R[:, 0] + o_x R[:, 1] + o_y R[:, 2] + o_z R[:, 3]`` (``e_o = (1, o)`` below).
 
-* :func:`spread` (P2G): ``grid[base + o] += W_o U_o`` summed over particles, a windowed
-  scatter-add into a (Wx, Wy, Wz, C) grid.
+* :func:`spread` (P2G): ``grid[base + o] += W_o U_o`` summed over particles, a
+  scatter-add of nine z-rows per particle into the flattened (Wx, Wy, Wz, C) grid.
 * :func:`collect` (G2P): ``S[:, d] = sum_o W_o e_o[d] grid[base + o]`` (N, 4, C): the
   weighted value (d = 0) and its first offset moments (d = 1..3).
 
@@ -193,7 +193,9 @@ def _spread_fwd(window, base, w, R):
 
 
 def _spread_bwd(window, res, dgrid):
-    base, w, R = res
+    # residuals materialised again: in a checkpointed reverse pass XLA otherwise
+    # recomputes the weights from the positions inside every fused reader (3x slower)
+    base, w, R = materialise(res)
     G = _gather(materialise(dgrid), base)
     return (np.zeros(base.shape, jax.dtypes.float0), _weight_cotangent(G, R, w),
             _moments(G, w))
@@ -220,7 +222,7 @@ def _collect_fwd(grid, base, w):
 
 
 def _collect_bwd(res, dS):
-    grid, base, w = res
+    grid, base, w = materialise(res)  # see _spread_bwd
     dS = materialise(dS)  # built from many slices' cotangents: compute it once
     dgrid = _spread(grid.shape[:3], base, w, dS)
     dw = _weight_cotangent(_gather(grid, base), dS, w)
