@@ -110,3 +110,49 @@ def test_checkpointed_rollout_gives_the_same_gradients(scene):
         # identical up to float64 rounding (XLA may fuse the recomputed segments differently)
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max(),
                                    err_msg=f"gradient wrt {name}: segment={SEGMENT} vs none")
+
+
+def test_a_mixture_with_plastic_has_finite_gradients_that_match_finite_differences():
+    """Dough, water and tofu particles interleaved in one grid, thrown at each other. The
+    non-plastic particles cannot yield (sigma_y = inf): the return map's limit / s_norm
+    was inf for them, and its unselected derivative made every particle's gradient NaN
+    after one substep. The dough's yield stress is low enough that it flows here (a run
+    with it raised to infinity ends elsewhere)."""
+    with jax.enable_x64(True):
+        f64 = jnp.float64
+        dx = 1.0 / 12
+        mats = (materials.dough(yield_stress=20.0), materials.water(),
+                materials.tofu())
+        cfg = mpm.MPMConfig(materials=mats, dx=dx, dt=1e-3, domain=(12, 12, 12),
+                            walls="slip", max_speed=2.0)
+        x, vol = sampling.box((0.35, 0.35, 0.35), (0.65, 0.65, 0.65), dx, ppc=4)
+        ids = np.arange(len(x)) % 3
+        rng = np.random.default_rng(3)
+        v0 = jnp.asarray(rng.normal(0.0, 0.5, x.shape), f64)
+        weights = jnp.asarray(rng.normal(size=x.shape), f64)
+        state = mpm.init_state(cfg, x, mat=ids, vol=vol, dtype=f64)
+
+        def final(v, params):
+            return mpm.rollout(cfg, params, state.replace(v=v), 20).x
+
+        params = mpm.MaterialParams.from_materials(mats, dtype=f64)
+        rigid = mpm.MaterialParams.from_materials(
+            (materials.dough(yield_stress=np.inf),) + mats[1:], dtype=f64)
+        flowed = float(jnp.max(jnp.abs(final(v0, params) - final(v0, rigid))))
+        assert flowed > 1e-6, f"the dough never yields here: |dx| {flowed} m"
+
+        def loss(v):
+            return jnp.mean(final(v, params) * weights)
+
+        g = np.asarray(jax.jit(jax.grad(loss))(v0))
+        bad = ~np.isfinite(g).all(1)
+        assert not bad.any(), (
+            f"{bad.sum()} of {len(g)} particles' gradients are not finite (by material: "
+            f"{[int(bad[ids == k].sum()) for k in range(3)]})")
+        d = rng.normal(size=x.shape)
+        h = 1e-6  # [m/s] along a unit-variance direction
+        fd = (float(loss(v0 + h * d)) - float(loss(v0 - h * d))) / (2 * h)
+        ad = float(np.sum(g * d))
+        # (the loss is a mean over 3 N terms: its derivative is ~1e-5 m per m/s)
+        assert abs(fd) > 1e-6, f"directional derivative too small to test: {fd}"
+        assert ad == pytest.approx(fd, rel=1e-3), f"dL/dv0 . d: autodiff {ad}, central FD {fd}"

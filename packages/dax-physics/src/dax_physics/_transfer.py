@@ -88,6 +88,24 @@ def _materialise_jvp(primals, tangents):
     return materialise(primals[0]), tangents[0]
 
 
+@jax.custom_vjp
+def materialise_cotangent(a):
+    """``a`` (an array or a tuple of arrays) itself; in reverse mode its cotangent is
+    materialised (:func:`materialise`) before it flows on to ``a``'s producers."""
+    return a
+
+
+def _materialise_cotangent_fwd(a):
+    return a, None
+
+
+def _materialise_cotangent_bwd(_, ct):
+    return (materialise(ct),)
+
+
+materialise_cotangent.defvjp(_materialise_cotangent_fwd, _materialise_cotangent_bwd)
+
+
 def stencil_weights(w):
     """(N, 27) weights ``W_o`` from the per-axis weights ``w`` (N, 3, 3), one fused loop."""
     n = w.shape[0]

@@ -440,8 +440,13 @@ def _stack3(m):
         tuple(m[i][j] for i in range(3) for j in range(3))))).T.reshape(-1, 3, 3)
 
 
+def _flat(m):
+    """Nested components -> a tuple of the nine, row-major."""
+    return tuple(m[i][j] for i in range(3) for j in range(3))
+
+
 def _soa(m):
-    return jnp.stack([m[i][j] for i in range(3) for j in range(3)])
+    return jnp.stack(_flat(m))
 
 
 def _unsoa(rows):
@@ -619,19 +624,32 @@ def _return_map(params: MaterialParams, mat, B):
     sy = params.yield_stress[mat]
     scale = jnp.maximum(1.0 + _det_minus_one(B), 1e-12) ** (-1.0 / 3.0)
     trB3 = (B[0][0] + B[1][1] + B[2][2]) / 3.0
+    # The return map's shared scalars and 3x3 intermediates are materialised: left to
+    # fusion, each of the nine outputs (and, in reverse mode, each of the nine adjoint
+    # components) redid the whole map (a plastic substep's gradient was 95x its forward).
+    scale, trB3 = _transfer.materialise((scale, trB3))
     dev = [[scale * (B[i][j] - (trB3 if i == j else 0.0)) for j in range(3)]
            for i in range(3)]
+    dev = _unsoa(_transfer.materialise(_flat(dev)))
     tr3 = scale * (1.0 + trB3)
     norm = jnp.sqrt(sum(dev[i][j] * dev[i][j] for i in range(3) for j in range(3)) + 1e-20)
     s_norm = mu * norm
     limit = math.sqrt(2.0 / 3.0) * sy
     yielding = s_norm > limit
-    factor = jnp.where(yielding, limit / s_norm, 1.0)
+    # Both sides of the division are replaced where the particle does not yield: a particle
+    # that cannot yield (sigma_y = inf: every non-plastic particle in a mixture) had
+    # limit / s_norm = inf there, whose unselected derivative inf * 0 made every
+    # particle's reverse-mode derivative NaN after one substep.
+    factor = jnp.where(yielding, jnp.where(yielding, limit, 1.0)
+                       / jnp.where(yielding, s_norm, 1.0), 1.0)
+    factor, tr3 = _transfer.materialise((factor, tr3))
     new_bbar = [[dev[i][j] * factor + (tr3 if i == j else 0.0) for j in range(3)]
                 for i in range(3)]
+    new_bbar = _unsoa(_transfer.materialise(_flat(new_bbar)))
     # keep det(bbar) = 1 (isochoric plastic flow) by renormalising the new isochoric part.
     d = jnp.maximum(_det(new_bbar), 1e-12)
     renorm = d ** (-1.0 / 3.0) / scale
+    renorm = _transfer.materialise(renorm)
     return [[jnp.where(yielding, new_bbar[i][j] * renorm - (1.0 if i == j else 0.0), B[i][j])
              for j in range(3)] for i in range(3)]
 
@@ -827,7 +845,12 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
     else:
         # F <- (I + D) F with D = dt C, as H <- H + (D + D H): the increment is added to
         # the small H, not to O(1) entries of F (see the module docstring).
-        D = [[dt * new_C[i][j] for j in range(3)] for i in range(3)]
+        # D's and B_trial's cotangents are materialised: each gathers the adjoints of the
+        # H update (and of the return map), and every component of the next adjoint reads
+        # all of them (fused, a plastic substep's reverse pass redid that chain per
+        # component: 80 ms a substep at 8192 particles)
+        D = _unsoa(_transfer.materialise_cotangent(
+            tuple(dt * new_C[i][j] for i in range(3) for j in range(3))))
         DH = _mul(D, Hm)
         Hn = [[Hm[i][j] + (D[i][j] + DH[i][j]) for j in range(3)] for i in range(3)]
         if "plastic" in kinds:
@@ -837,6 +860,7 @@ def step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive=None) ->
             HnDt = _mul(Hn, _transpose(D))
             B_trial = [[Hn[i][j] + (D[j][i] + HnDt[i][j]) for j in range(3)]
                        for i in range(3)]
+            B_trial = _unsoa(_transfer.materialise_cotangent(_flat(B_trial)))
             B_new = _return_map(params, state.mat, B_trial)
             Hn = [[jnp.where(is_pl, B_new[i][j], Hn[i][j]) for j in range(3)]
                   for i in range(3)]
