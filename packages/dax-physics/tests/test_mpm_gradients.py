@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.ad_checkpoint import print_saved_residuals
 
 from dax_physics import colliders, materials, mpm, sampling
 
@@ -156,3 +157,24 @@ def test_a_mixture_with_plastic_has_finite_gradients_that_match_finite_differenc
         # (the loss is a mean over 3 N terms: its derivative is ~1e-5 m per m/s)
         assert abs(fd) > 1e-6, f"directional derivative too small to test: {fd}"
         assert ad == pytest.approx(fd, rel=1e-3), f"dL/dv0 . d: autodiff {ad}, central FD {fd}"
+
+
+def test_a_substep_keeps_only_its_input_and_the_named_intermediates_for_reverse_mode(capsys):
+    """mpm.step's reverse pass stores the substep's input state and the intermediates named
+    in mpm.REVERSE_SAVED, nothing else (it recomputes the rest): a fluid substep kept 4.2 MB
+    of 8192 particles' intermediates before, and first-touching them cost a sixth of a
+    gradient's time."""
+    mats = (materials.water(), materials.tofu(), materials.dough())
+    dx = 1.0 / 12
+    cfg = mpm.MPMConfig(materials=mats, dx=dx, dt=1e-3, domain=(12, 12, 12), walls="slip")
+    x, vol = sampling.box((0.35, 0.35, 0.35), (0.65, 0.65, 0.65), dx, ppc=4)
+    state = mpm.init_state(cfg, x, mat=np.arange(len(x)) % 3, vol=vol)
+    capsys.readouterr()
+    print_saved_residuals(lambda s: mpm.step(cfg, cfg.params, s), state)
+    lines = capsys.readouterr().out.strip().splitlines()  # "<shape> <where from>"
+    named = {line.split("'")[1] for line in lines if " named '" in line}
+    other = [line for line in lines if not any(
+        k in line for k in (" named '", " from the argument ", " from a constant",
+                            " from a literal"))]
+    assert lines and not other, f"unnamed intermediates kept: {other}"
+    assert named == set(mpm.REVERSE_SAVED), named
