@@ -628,7 +628,8 @@ def _return_map(params: MaterialParams, mat, B):
     trB3 = (B[0][0] + B[1][1] + B[2][2]) / 3.0
     # The return map's shared scalars and 3x3 intermediates are materialised: left to
     # fusion, each of the nine outputs (and, in reverse mode, each of the nine adjoint
-    # components) redid the whole map (a plastic substep's gradient was 95x its forward).
+    # components) redid the whole map (a plastic gradient took 46x its forward at 20
+    # substeps of 8192 particles, 4.2x now).
     scale, trB3 = _transfer.materialise((scale, trB3))
     dev = [[scale * (B[i][j] - (trB3 if i == j else 0.0)) for j in range(3)]
            for i in range(3)]
