@@ -437,8 +437,7 @@ _mat3.defvjp(_mat3_fwd, _mat3_bwd)
 def _stack3(m):
     """Inverse of :func:`_mat3`: nested components -> (N, 3, 3), the nine computed together
     in one loop first (see :func:`_mat3`)."""
-    return _soa(_unsoa(_transfer.materialise(
-        tuple(m[i][j] for i in range(3) for j in range(3))))).T.reshape(-1, 3, 3)
+    return jnp.stack(_transfer.materialise(_flat(m))).T.reshape(-1, 3, 3)
 
 
 def _flat(m):
@@ -873,8 +872,8 @@ def _step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive) -> MPM
         # H update (and of the return map), and every component of the next adjoint reads
         # all of them (fused, a plastic substep's reverse pass redid that chain per
         # component: 80 ms a substep at 8192 particles)
-        D = _unsoa(_transfer.materialise_cotangent(
-            tuple(dt * new_C[i][j] for i in range(3) for j in range(3))))
+        D = _unsoa(_transfer.materialise_cotangent(_flat(
+            [[dt * c for c in row] for row in new_C])))
         DH = _mul(D, Hm)
         Hn = [[Hm[i][j] + (D[i][j] + DH[i][j]) for j in range(3)] for i in range(3)]
         if "plastic" in kinds:
