@@ -56,7 +56,7 @@ def _barrier(a):
     zero times. Its trip count (``bits == bits + 1``, false for every int32) is not known to
     the compiler, so the loop stays, and XLA fuses nothing across a loop boundary."""
     first = jax.tree.leaves(a)[0]
-    bits = jax.lax.bitcast_convert_type(first.reshape(-1)[:1].astype(jnp.float32),
+    bits = jax.lax.bitcast_convert_type(jnp.real(first.reshape(-1)[:1]).astype(jnp.float32),
                                         jnp.int32)[0]
     trips = (bits == bits + 1).astype(jnp.int32)
     bump = functools.partial(jax.tree.map, lambda x: x + jnp.ones((), x.dtype))

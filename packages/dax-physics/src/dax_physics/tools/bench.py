@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import mpm, sampling
 from ..materials import Material
-from .timing import emit, median_time, peak_rss_mb
+from .timing import emit, grad_vs_forward, median_time, peak_rss_mb
 
 # --------------------------------------------------------------------------- block drop
 
@@ -118,31 +118,12 @@ def cmd_mpm_grad(args):
         out = mpm.rollout(cfg, params, state.replace(v=v0), n, seg)
         return jnp.mean(out.x[:, 2])
 
-    grad = jax.jit(jax.grad(loss))
     rss0 = peak_rss_mb()
-    t0 = time.perf_counter()
-    compiled = grad.lower(state.v).compile()
-    compile_s = time.perf_counter() - t0
-    mem = compiled.memory_analysis()
-    g = compiled(state.v)
-    jax.block_until_ready(g)
-    # the forward rollout of the same loss, timed alternately with the gradient so that
-    # the ratio sees one machine state
-    fwd = jax.jit(loss).lower(state.v).compile()
-    jax.block_until_ready(fwd(state.v))
-    grad_times, fwd_times = [], []
-    for _ in range(max(args.reps, 1)):
-        fwd_times.append(median_time(lambda: jax.block_until_ready(fwd(state.v)), 1, 0.0)[0])
-        grad_times.append(
-            median_time(lambda: jax.block_until_ready(compiled(state.v)), 1, 0.0)[0])
-    med, fwd_med = float(np.median(grad_times)), float(np.median(fwd_times))
+    timing, g = grad_vs_forward(loss, state.v, args.reps)
     record = dict(
         bench="mpm-grad", material=args.material, grid=args.grid, particles=args.particles,
         substeps=n, checkpoint_segments=args.checkpoint_segments, segment_length=seg,
-        grad_s=med, forward_s=fwd_med, grad_over_forward=med / fwd_med,
-        compile_s=compile_s, peak_rss_mb=peak_rss_mb(),
-        peak_rss_before_mb=rss0,
-        xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2 ** 20,
+        **timing, peak_rss_mb=peak_rss_mb(), peak_rss_before_mb=rss0,
         grad_norm=float(jnp.linalg.norm(g)), finite=bool(jnp.all(jnp.isfinite(g))))
     emit(record, args.json)
 

@@ -1,5 +1,5 @@
-"""Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-fold``, ``cloth-sag-study``,
-``cloth-mesh``.
+"""Cloth benchmarks (JSON on stdout): ``cloth-drop``, ``cloth-grad``, ``cloth-fold``,
+``cloth-sag-study``, ``cloth-mesh``.
 
 ``dax_physics.tools.bench`` registers these with :func:`add_subparsers`; standalone use:
 ``python -m dax_physics.tools.bench_cloth cloth-drop --n 64 --substeps 1000 --json``.
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import cloth as c
-from .timing import emit, median_time, peak_rss_mb
+from .timing import emit, grad_vs_forward, median_time, peak_rss_mb
 
 # ----------------------------------------------------------------------------- cloth-drop
 
@@ -42,6 +42,24 @@ def run_cloth_drop(args):
 
 
 # ----------------------------------------------------------------------------- cloth-fold
+
+def run_cloth_grad(args):
+    """The cloth-drop scene's gradient: d(mean height after ``substeps``)/d(initial
+    velocities), timed against the forward rollout of the same loss."""
+    cfg, cloth, state = c.cloth_drop_scene(args.n, dt=args.dt)
+    steps = args.substeps
+
+    def loss(v0):
+        out = c.grid_rollout(cfg, cloth, c.GridState(state.x, v0), steps)
+        return jnp.mean(out.x[2])
+
+    timing, g = grad_vs_forward(loss, state.v, args.reps)
+    rec = dict(bench="cloth-grad", impl="dax-jax-stencil", n=args.n, substeps=steps,
+               dt=cfg.dt, reps=args.reps, **timing, peak_rss_mb=peak_rss_mb(),
+               grad_norm=float(jnp.linalg.norm(g)), finite=bool(jnp.all(jnp.isfinite(g))),
+               backend=jax.default_backend(), jax=jax.__version__, threads=os.cpu_count())
+    emit(rec, args.json)
+
 
 def fold_scene(n: int = 32, size: float = 0.3, dtype=jnp.float32):
     """A cloth on a table folded corner onto (near) the opposite corner with
@@ -227,7 +245,8 @@ def _mesh_record(n: int, S: int, reps: int, clock, wall: bool) -> dict:
 
 
 def add_subparsers(subparsers):
-    """Register ``cloth-drop``, ``cloth-fold`` and ``cloth-sag-study`` on an argparse
+    """Register ``cloth-drop``, ``cloth-grad``, ``cloth-fold``, ``cloth-mesh`` and
+    ``cloth-sag-study`` on an argparse
     subparsers object; each sets ``func`` so the caller runs ``args.func(args)``."""
     p = subparsers.add_parser("cloth-drop", help="peers' 64x64 cloth-drop scene (stencil path)")
     p.add_argument("--n", type=int, default=64)
@@ -237,6 +256,14 @@ def add_subparsers(subparsers):
     p.add_argument("--unroll", type=int, default=1)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=run_cloth_drop)
+
+    p = subparsers.add_parser("cloth-grad", help="cloth-drop gradient time against forward")
+    p.add_argument("--n", type=int, default=64)
+    p.add_argument("--substeps", type=int, default=1000)
+    p.add_argument("--dt", type=float, default=1e-4)
+    p.add_argument("--reps", type=int, default=7)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run_cloth_grad)
 
     p = subparsers.add_parser("cloth-fold", help="pick-and-place fold with self-collision")
     p.add_argument("--n", type=int, default=32)

@@ -42,6 +42,27 @@ def timed_compile(fn, *args):
     return compiled, time.perf_counter() - t0
 
 
+def grad_vs_forward(loss, arg, reps: int) -> tuple[dict, object]:
+    """Time ``jax.grad(loss)(arg)`` against ``loss(arg)``, both compiled ahead of time and
+    called alternately ``reps`` times so that their ratio sees one machine state. Returns
+    ``(record, gradient)``; the record holds the medians ``grad_s`` and ``forward_s`` [s],
+    ``grad_over_forward``, the gradient's ``compile_s`` and its XLA temporaries
+    ``xla_temp_mb`` [MiB]."""
+    grad, compile_s = timed_compile(jax.jit(jax.grad(loss)), arg)
+    mem = grad.memory_analysis()
+    g = jax.block_until_ready(grad(arg))
+    fwd, _ = timed_compile(jax.jit(loss), arg)
+    jax.block_until_ready(fwd(arg))
+    grad_times, fwd_times = [], []
+    for _ in range(max(reps, 1)):
+        fwd_times.append(median_time(lambda: fwd(arg), 1)[0])
+        grad_times.append(median_time(lambda: grad(arg), 1)[0])
+    med, fwd_med = float(np.median(grad_times)), float(np.median(fwd_times))
+    return dict(grad_s=med, forward_s=fwd_med, grad_over_forward=med / fwd_med,
+                compile_s=compile_s,
+                xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2 ** 20), g
+
+
 def emit(record: dict, as_json: bool) -> None:
     """Print ``record`` as one JSON line (``as_json``) or as aligned ``key: value`` lines."""
     if as_json:
