@@ -65,6 +65,8 @@ def _worker(name: str, reps: int) -> dict:
             out = mpm.rollout(cfg, cfg.params, state.replace(v=v0), 100, seg)
             return jnp.mean(out.x[:, 2])
 
+    # timed here, not with dax_physics.tools.timing.grad_vs_forward, so that a baseline
+    # checkout that predates that helper runs exactly the same measurement
     grad = jax.jit(jax.grad(loss)).lower(arg).compile()
     fwd = jax.jit(loss).lower(arg).compile()
     g = jax.block_until_ready(grad(arg))

@@ -54,7 +54,8 @@ def mm(a, b):
 def _barrier(a):
     """``a`` (an array or a tuple of arrays) itself, as the result of a while loop that runs
     zero times. Its trip count (``bits == bits + 1``, false for every int32) is not known to
-    the compiler, so the loop stays, and XLA fuses nothing across a loop boundary."""
+    the compiler, so the loop stays, and XLA fuses nothing across a loop boundary. (The
+    bits are read from the first leaf's real part, so complex leaves pass too.)"""
     first = jax.tree.leaves(a)[0]
     bits = jax.lax.bitcast_convert_type(jnp.real(first.reshape(-1)[:1]).astype(jnp.float32),
                                         jnp.int32)[0]
