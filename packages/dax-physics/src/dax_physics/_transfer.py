@@ -1,9 +1,10 @@
 """The two particle-grid transfers of MLS-MPM, with hand-written reverse modes.
 
-Both act on a particle's 3x3x3 block of grid nodes ``base + o`` (o in {0, 1, 2}^3, the
-order of :data:`OFFSETS`) with quadratic B-spline weights ``W_o = w[o_x, 0] w[o_y, 1]
-w[o_z, 2]`` built from the per-axis weights ``w`` (N, 3 offsets, 3 axes). The values they
-move are affine in the offset: a particle's rows ``R`` (N, 4, C) stand for the node values
+Both act on a particle's 3x3x3 block of grid nodes ``base + o`` (o in {0, 1, 2}^3, in
+row-major order where flattened: o = (i, j, k) at 9 i + 3 j + k) with quadratic B-spline
+weights ``W_o = w[o_x, 0] w[o_y, 1] w[o_z, 2]`` built from the per-axis weights
+``w`` (N, 3 offsets, 3 axes). The values they move are affine in the offset: a particle's
+rows ``R`` (N, 4, C) stand for the node values
 ``U_o = R[:, 0] + o_x R[:, 1] + o_y R[:, 2] + o_z R[:, 3]`` (``e_o = (1, o)`` below).
 
 * :func:`spread` (P2G): ``grid[base + o] += W_o U_o`` summed over particles, a
@@ -28,8 +29,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-OFFSETS = np.array([(i, j, k) for i in range(3) for j in range(3) for k in range(3)],
-                   np.int32)
 # A particle's block is read and written as nine z-rows of 3 C contiguous floats of the
 # flattened grid (channels last): one flat gather or scatter with (N, 9) starts and a
 # 3 C-wide window. On XLA:CPU that is about 2x faster than a (3, 3, 3, C) window on the 4-D
@@ -75,11 +74,12 @@ def materialise(a):
     read by a dozen fusions (measured: half of the fluid substep), or once per row of a
     stack (a concatenation computes only the operand of its row, so the 13 stacked entries
     of an elastic particle's rows each redid its polar decomposition: a 15x slower
-    substep). A tuple keeps its members apart, so XLA computes them in one multi-output
-    loop that shares their common work. ``lax.optimization_barrier`` does not stop this on
-    CPU; an identity matmul did, but it now runs as a YNNPACK call costing 100-200 us on a
-    32^3 grid, and a sum over a zero pad becomes a YNNPACK reduction, slower still. The
-    zero-trip while loop of :func:`_barrier` costs a buffer write. The identity passes
+    substep). A tuple keeps its members apart; XLA may compute them in one multi-output
+    loop that shares their common work, but need not (the grid cloth's six reverse outputs
+    got six loops, hence its complex pairs). ``lax.optimization_barrier`` does not stop
+    this on CPU; an identity matmul did, but it now runs as a YNNPACK call costing 100-200
+    us on a 32^3 grid, and a sum over a zero pad becomes a YNNPACK reduction, slower still.
+    The zero-trip while loop of :func:`_barrier` costs a buffer write. The identity passes
     tangents and cotangents straight through (a while loop has no transpose)."""
     return _barrier(a)
 

@@ -219,7 +219,7 @@ def _forces_bwd(cfg, res, g):
         for idx, (k, o, L, has) in enumerate(nbrs):
             xs, vs, gs = (_shifted(a, o, n, m) for a in (xp, vp, gp))
             d = [xs[c] - x[c] for c in range(3)]
-            ln, inv, du, s = _spring(cfg, k, L, has, d, [vs[c] - v[c] for c in range(3)])
+            _, inv, du, s = _spring(cfg, k, L, has, d, [vs[c] - v[c] for c in range(3)])
             u = [d[c] * inv for c in range(3)]
             G = [g[c] - gs[c] for c in range(3)]
             Gu = G[0] * u[0] + G[1] * u[1] + G[2] * u[2]

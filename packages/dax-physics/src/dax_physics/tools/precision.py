@@ -3,9 +3,9 @@
 JAX's default precision lets a float32 dot product round its inputs to TF32 (a 10-bit
 mantissa) on NVIDIA GPUs since Ampere, and to bfloat16 on TPUs. CPU ignores the setting,
 so a CPU run never shows the error; the lowered program does, since every ``dot_general``
-in it carries its precision. The solvers ask for HIGHEST on each of theirs (their identity
-matmuls would otherwise be a 1e-3 relative error, not a copy); tests use :func:`dots` to
-keep it so.
+in it carries its precision. The solvers ask for HIGHEST on each of theirs (a rotation
+or a frame change would otherwise carry a 1e-3 relative error); tests use :func:`dots`
+to keep it so.
 """
 
 from __future__ import annotations
