@@ -64,19 +64,22 @@ def test_transporter_learns_pick_and_place_pixels_on_a_synthetic_task():
 
 @pytest.mark.parametrize("stride, k", [(1, 1), (1, 3), (2, 3)])
 def test_matmul_conv_equals_xla_convolution(stride, k):
-    x = jax.random.normal(jax.random.PRNGKey(0), (2, 16, 16, 5))
-    w = jax.random.normal(jax.random.PRNGKey(1), (k, k, 5, 7))
-    want = jax.lax.conv_general_dilated(x, w, (stride, stride), "SAME",
-                                        dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    got = transporter.matmul_conv(x, w, (stride, stride), "SAME")
-    np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=2e-5)
-    correlated = transporter.correlate(x[0], w[:, :, :, :3].transpose(3, 0, 1, 2))
-    if k == 3:
-        np.testing.assert_allclose(  # the transport's correlation = a "SAME" convolution
-            np.asarray(correlated),
-            np.asarray(jax.lax.conv_general_dilated(
-                x[:1], w[:, :, :, :3], (1, 1), "SAME",
-                dimension_numbers=("NHWC", "HWIO", "NHWC"))[0].transpose(2, 0, 1)), atol=2e-5)
+    # Full float32 on both sides: at JAX's default precision a GPU rounds the products'
+    # inputs to TF32 and the two formulations then differ by 4e-3 (measured on an H100).
+    with jax.default_matmul_precision("highest"):
+        x = jax.random.normal(jax.random.PRNGKey(0), (2, 16, 16, 5))
+        w = jax.random.normal(jax.random.PRNGKey(1), (k, k, 5, 7))
+        want = jax.lax.conv_general_dilated(x, w, (stride, stride), "SAME",
+                                            dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        got = transporter.matmul_conv(x, w, (stride, stride), "SAME")
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=2e-5)
+        correlated = transporter.correlate(x[0], w[:, :, :, :3].transpose(3, 0, 1, 2))
+        if k == 3:
+            np.testing.assert_allclose(  # the transport's correlation = a "SAME" convolution
+                np.asarray(correlated),
+                np.asarray(jax.lax.conv_general_dilated(
+                    x[:1], w[:, :, :, :3], (1, 1), "SAME",
+                    dimension_numbers=("NHWC", "HWIO", "NHWC"))[0].transpose(2, 0, 1)), atol=2e-5)
 
 
 def test_transporter_does_not_apply_to_low_level_tasks():

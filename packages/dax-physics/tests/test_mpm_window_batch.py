@@ -54,10 +54,14 @@ def test_active_window_matches_the_full_grid(falling_block):
     mpm.check_state(s_win)  # the block always fits in the 12^3 window
     assert origins[0][2] >= 8 and origins[1][2] == 0 and origins[2][2] > 0, (
         f"the window did not follow the block down to the floor and back: origins {origins}")
+    # Both grids sum the same particle contributions in another order; the bounce amplifies
+    # the float32 round-off. Largest difference / scale: C 9.2e-6 on CPU and 2.3e-5 on an
+    # H100 (x 6.6e-7, v 3.2e-6, F 3.2e-6 on CPU). A window that loses or shifts nodes is
+    # off by percents.
     for name in ("x", "v", "C", "F"):
         a, b = np.asarray(getattr(s_full, name)), np.asarray(getattr(s_win, name))
         scale = max(np.abs(a).max(), 1.0)
-        np.testing.assert_allclose(b, a, rtol=0, atol=1e-5 * scale,
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-4 * scale,
                                    err_msg=f"windowed vs full grid: {name}")
 
 

@@ -7,6 +7,8 @@ bounded-collider grid path, cloth with self-collision) and require HIGHEST on ev
 
 from __future__ import annotations
 
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +16,7 @@ import numpy as np
 from dax_physics import cloth as c
 from dax_physics import colliders, materials, mpm, sampling
 from dax_physics.tools.bench_cloth import fold_scene
-from dax_physics.tools.precision import dots
+from dax_physics.tools.precision import DETERMINISTIC_FLAG, deterministic_gpu_ops, dots
 
 
 def assert_full_precision(fn, *args, least=1):
@@ -75,3 +77,18 @@ def test_cloth_with_self_collision_its_gradient_and_energy_use_full_precision():
     assert_full_precision(loss, st.x, least=0)
     assert_full_precision(jax.grad(loss), st.x, least=0)
     assert_full_precision(lambda x: c.energy(cfg, cl, st.replace(x=x)), st.x, least=0)
+
+
+def test_deterministic_gpu_ops_adds_the_flag_once_and_keeps_the_others(monkeypatch):
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    deterministic_gpu_ops()
+    assert os.environ["XLA_FLAGS"] == DETERMINISTIC_FLAG
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=4")
+    deterministic_gpu_ops()
+    deterministic_gpu_ops()
+    assert os.environ["XLA_FLAGS"].split() == [
+        "--xla_force_host_platform_device_count=4", DETERMINISTIC_FLAG]
+    # a choice already made (even false) is the caller's
+    monkeypatch.setenv("XLA_FLAGS", "--xla_gpu_deterministic_ops=false")
+    deterministic_gpu_ops()
+    assert os.environ["XLA_FLAGS"] == "--xla_gpu_deterministic_ops=false"

@@ -1,7 +1,8 @@
 """Shared fixtures: a small Push-Rope (50 substeps per action, of which 10 lift) so that
 compiled steps are cheap; each fixture compiles once per session. ``Jitted`` gives a pure
 env jitted ``reset``/``step``/``expert_action`` for eager test code. Also the determinism
-check every particle task runs."""
+check every particle task runs. Same seed, same bits on a GPU too: XLA is asked for
+scatter-adds in a fixed order before JAX starts (CPU ignores it)."""
 
 import dataclasses
 
@@ -10,8 +11,11 @@ import numpy as np
 import pytest
 
 import dax_tasks
+from dax_physics.tools.precision import deterministic_gpu_ops
 from dax_tasks import push_rope
 from dax_tasks.wrappers import VmapWrapper
+
+deterministic_gpu_ops()
 
 
 def small_overrides(**extra):

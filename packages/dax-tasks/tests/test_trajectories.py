@@ -32,6 +32,9 @@ def _fixture(name):
         return {k: data[k] for k in data.files}
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason=(
+    "the trajectories were recorded on CPU; another backend rounds differently (on an H100 "
+    "the cloth goals, simulated folds through self-collision, differ by up to 4 mm)"))
 @pytest.mark.parametrize("name", dax_tasks.TASKS)
 def test_trajectory_is_bit_identical_to_the_recorded_one(name):
     want = _fixture(name)
