@@ -39,11 +39,15 @@ import sys
 import tempfile
 import time
 
+from _report import write_report
+
+from dax_physics.tools.precision import DETERMINISTIC_FLAG
+
 WORKLOADS = ("mpm_fluid", "mpm_elastic", "cloth", "mpm_grad", "cloth_grad", "task_grad")
 CONFIGS = {
     "cpu": {"JAX_PLATFORMS": "cpu"},
     "gpu": {"JAX_PLATFORMS": "cuda"},
-    "gpu-det": {"JAX_PLATFORMS": "cuda", "XLA_FLAGS": "--xla_gpu_deterministic_ops=true"},
+    "gpu-det": {"JAX_PLATFORMS": "cuda", "XLA_FLAGS": DETERMINISTIC_FLAG},
 }
 
 
@@ -199,12 +203,7 @@ def main(argv=None) -> int:
                     if os.path.exists(path):
                         with np.load(path) as other:
                             doc["versus_" + configs[0]][c] = compare(ref, other)
-    text = json.dumps(doc, indent=1)
-    print(text)
-    if args.out:
-        from dax_tasks.io import atomic_write
-
-        atomic_write(args.out, text + "\n")
+    write_report(doc, args.out)
     return 0
 
 

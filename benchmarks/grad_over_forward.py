@@ -29,6 +29,8 @@ import subprocess
 import sys
 import time
 
+from _report import write_report
+
 WORKLOADS = {
     "cloth": {},
     "fluid-s1": {"material": "fluid", "segments": 1},
@@ -136,13 +138,7 @@ def main(argv=None):
                baseline_src=bool(args.baseline_src), machine=platform.machine(),
                cpus=os.cpu_count(), python=platform.python_version(), summary=summary,
                runs=runs)
-    text = json.dumps(doc, indent=1)
-    print(text)
-    if args.out:
-        tmp = args.out + ".tmp"
-        with open(tmp, "w") as fh:
-            fh.write(text + "\n")
-        os.replace(tmp, args.out)
+    write_report(doc, args.out)
 
 
 if __name__ == "__main__":

@@ -39,6 +39,8 @@ import subprocess
 import sys
 import time
 
+from _report import write_report
+
 
 def child(args) -> dict:
     import jax
@@ -152,12 +154,7 @@ def main(argv=None) -> int:
            "command": "python benchmarks/scaling.py " + " ".join(
                a for a in (argv if argv is not None else sys.argv[1:])),
            "results": results}
-    text = json.dumps(doc, indent=1)
-    print(text)
-    if args.out:
-        from dax_tasks.io import atomic_write
-
-        atomic_write(args.out, text + "\n")
+    write_report(doc, args.out)
     return 0
 
 

@@ -76,6 +76,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from _report import write_report
+
 PEER_ENGINES = ("taichi", "warp")
 ALL_SCENES = ("fluid32", "elastic32", "fluid64", "cloth")
 
@@ -531,11 +533,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     for s in args.scene_list:
         out["scenes"][s] = scene_summary(s, results[s], engines)
-    text = json.dumps(out, indent=2)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text + "\n")
-    print(text, flush=True)
+    write_report(out, args.out, indent=2)
     return 0
 
 
