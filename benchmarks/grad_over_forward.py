@@ -40,16 +40,14 @@ WORKLOADS = {
 }
 
 
-def _worker(name: str, reps: int) -> dict:
-    import jax
+def workload(name: str):
+    """``(loss, arg)`` of a workload: a scalar loss of the initial velocities ``arg``."""
     import jax.numpy as jnp
-    import numpy as np
 
     if name == "cloth":
         from dax_physics import cloth as c
 
         cfg, cloth, state = c.cloth_drop_scene(64, dt=1e-4)
-        arg = state.v
 
         def loss(v0):
             out = c.grid_rollout(cfg, cloth, c.GridState(state.x, v0), 1000)
@@ -61,12 +59,19 @@ def _worker(name: str, reps: int) -> dict:
         spec = WORKLOADS[name]
         cfg, state = block_drop_scene(spec["material"], 32, 8192)
         seg = None if spec["segments"] <= 1 else 100 // spec["segments"]
-        arg = state.v
 
         def loss(v0):
             out = mpm.rollout(cfg, cfg.params, state.replace(v=v0), 100, seg)
             return jnp.mean(out.x[:, 2])
+    return loss, state.v
 
+
+def _worker(name: str, reps: int) -> dict:
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    loss, arg = workload(name)
     # timed here, not with dax_physics.tools.timing.grad_vs_forward, so that a baseline
     # checkout that predates that helper runs exactly the same measurement
     grad = jax.jit(jax.grad(loss)).lower(arg).compile()

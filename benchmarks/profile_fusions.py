@@ -1,0 +1,104 @@
+"""Where a solver benchmark's time goes on XLA:CPU: the time of each compiled op (a fused
+loop, a scatter, a copy), from JAX's own profiler, joined with the op's shape and the JAX
+operation it came from.
+
+The workloads are those of ``grad_over_forward.py`` (``cloth``, ``fluid-s1``, ...), run as
+the forward (``--mode fwd``) or its gradient (``--mode grad``): compiled ahead of time,
+warmed up, then ``--calls`` calls traced with ``jax.profiler.trace``. Each op's time is
+summed over the XLA:CPU worker threads that ran it (so ``op_ms_per_call`` can exceed the
+wall time when two threads share a loop). Ops are sorted into:
+
+- ``forward``: the forward computation (in a gradient: the forward pass that keeps the
+  residuals, their stores included);
+- ``reverse``: the transposed (backward) computation;
+- ``recomputed``: forward values the backward pass recomputes (``jax.checkpoint``);
+- ``residual_init``: the zero-fill of the scan's residual stacks, once per call;
+- ``other``: copies and loop bookkeeping with no JAX operation recorded.
+
+One JSON document to stdout and to ``--out``:
+
+    python benchmarks/profile_fusions.py --workload fluid-s1 --mode grad --top 25
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import re
+import statistics
+import tempfile
+import time
+
+from _report import write_report
+from grad_over_forward import WORKLOADS, workload
+
+#: ``  %name = shape opcode(...), ... op_name="..."`` of an instruction in the HLO text
+_INSTRUCTION = re.compile(r'^\s*(?:ROOT )?%(\S+) = (\S+) [\w-]+\(.*?op_name="([^"]*)"', re.M)
+
+
+def _category(op: str, op_name: str) -> str:
+    if "rematted_computation" in op_name:
+        return "recomputed"
+    if "transpose(" in op_name:
+        return "reverse"
+    if "/while" not in op_name and (op.startswith("wrapped_broadcast")
+                                     or op_name.endswith("broadcast_in_dim")):
+        return "residual_init"  # a broadcast outside the loops: a stack's zero-fill
+    return "forward"
+
+
+def profile(name: str, mode: str, calls: int, top: int) -> dict:
+    import jax
+
+    loss, arg = workload(name)
+    fn = jax.jit(jax.grad(loss) if mode == "grad" else loss).lower(arg).compile()
+    ops = {m.group(1): (m.group(2), m.group(3)) for m in _INSTRUCTION.finditer(fn.as_text())}
+    for _ in range(2):
+        jax.block_until_ready(fn(arg))
+    walls = []
+    with tempfile.TemporaryDirectory() as tmp:
+        with jax.profiler.trace(tmp):
+            for _ in range(calls):
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(arg))
+                walls.append(time.perf_counter() - t0)
+        trace = jax.profiler.ProfileData.from_file(
+            glob.glob(f"{tmp}/**/*.xplane.pb", recursive=True)[0])
+        total, count = collections.Counter(), collections.Counter()
+        for plane in trace.planes:
+            for line in plane.lines:
+                for ev in line.events:
+                    if ev.name in ops or re.fullmatch(r"copy(\.\d+)?|while(\.\d+)?", ev.name):
+                        total[ev.name] += ev.duration_ns
+                        count[ev.name] += 1
+    by_category = collections.Counter()
+    rows = []
+    for op, ns in total.most_common():
+        shape, op_name = ops.get(op, ("", ""))
+        cat = _category(op, op_name) if op_name else "other"
+        ms = ns / 1e6 / calls
+        by_category[cat] += ms
+        if len(rows) < top:
+            rows.append(dict(op=op, ms_per_call=round(ms, 3), runs_per_call=count[op] / calls,
+                             shape=shape, category=cat, jax_op=op_name))
+    return dict(bench="profile-fusions", workload=name, mode=mode, calls=calls,
+                wall_ms_per_call=1e3 * statistics.median(walls),
+                op_ms_per_call=round(sum(by_category.values()), 2),
+                by_category={k: round(v, 2) for k, v in by_category.most_common()},
+                top=rows)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--workload", default="fluid-s1", choices=list(WORKLOADS))
+    p.add_argument("--mode", default="grad", choices=["fwd", "grad"])
+    p.add_argument("--calls", type=int, default=3)
+    p.add_argument("--top", type=int, default=25)
+    p.add_argument("--out", default=None)
+    args = p.parse_args(argv)
+    write_report(profile(args.workload, args.mode, args.calls, args.top), args.out)
+
+
+if __name__ == "__main__":
+    main()
