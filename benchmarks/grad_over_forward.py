@@ -6,9 +6,10 @@ process (so that their ratio sees one machine state):
 
 - ``cloth``: the 64 x 64 cloth-drop scene of the side-by-side benchmark, 1000 substeps of
   1e-4 s; loss: mean height.
-- ``fluid`` / ``elastic``: the 8192-particle block drop on a 32^3 grid, 100 substeps;
-  loss: mean height; ``--segments`` 1 (no checkpointing) and 10 (checkpointed segments of
-  10 substeps, the memory-saving setting, which recomputes each segment once more).
+- ``fluid-s1`` / ``elastic-s1``: the 8192-particle block drop on a 32^3 grid, 100
+  substeps, no checkpointing; loss: mean height. ``fluid-s10`` / ``elastic-s10``: the same
+  in 10 checkpointed segments of 10 substeps (the memory-saving setting, which recomputes
+  each segment once more).
 
 Each workload runs in a subprocess of its own, in ``--rounds`` rounds. With
 ``--baseline-src`` (the ``src`` directories of another checkout's packages, joined with

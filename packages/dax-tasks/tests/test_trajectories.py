@@ -1,7 +1,9 @@
-"""The nine tasks reproduce, bit for bit, the trajectories recorded before the env core was
-introduced (fixtures/trajectories, written by fixtures/record_trajectories.py from the
-code at that commit): the goal, every observation, action, reward, info value and the final
-physics state of two scripted-expert steps on small scenes.
+"""The nine tasks reproduce, bit for bit, their recorded trajectories (fixtures/trajectories,
+written by fixtures/record_trajectories.py): the goal, every observation, action, reward,
+info value and the final physics state of two scripted-expert steps on small scenes. They
+were first recorded to check the move to the env core; a task's file is re-recorded only
+when a deliberate change to the physics or the task moves its numbers, and the commit that
+does so says why and by how much (``git log`` of the fixtures).
 
 Run with the default params closed over, the step compiles to the program the old ``Task``
 compiled, and everything is identical. Run with the params passed as data (as a learner
