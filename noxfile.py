@@ -46,6 +46,9 @@ SIBLINGS: dict[str, list[str]] = {
 }
 LAYERS = list(SIBLINGS)
 
+# What the scripts in benchmarks/ need beyond the packages (they are not a package).
+BENCHMARK_DEPS = ["matplotlib>=3.7"]
+
 # Heavy dependencies that belong to higher layers; dax-physics must not pull them in.
 NOT_IN_PHYSICS = ["gymnasium", "h5py", "flax", "optax"]
 # Optional everywhere: only the `gym` extra of dax-tasks (and test extras) install it.
@@ -184,10 +187,12 @@ def combos(session: nox.Session, combo: list[str]) -> None:
 
 @nox.session
 def integration(session: nox.Session) -> None:
-    """All four packages together; runs the cross-package tests in tests/."""
+    """All four packages together; runs the cross-package tests in tests/ and the tests of
+    the benchmark and validation scripts (tests/benchmarks)."""
     _install_local(session, LAYERS, extras={d: "test" for d in LAYERS})
-    session.install("packaging>=23")  # the cross-package tests parse the requirements
-    _pytest(session, "tests", "--ignore=tests/multidevice", parallel=False)
+    # the cross-package tests parse the requirements; the scripts draw charts
+    session.install("packaging>=23", *BENCHMARK_DEPS)
+    _pytest(session, "tests", "--ignore=tests/multidevice")
 
 
 @nox.session
@@ -246,19 +251,21 @@ def demo(session: nox.Session) -> None:
 def validate(session: nox.Session) -> None:
     """The validation suite (not a default session; under 10 minutes on 2 cores): every
     solver against analytic answers and Martin & Moyce's measurements, with convergence
-    charts, and the task-gradient rows dax-tasks plugs in; writes validation_out/
+    charts, and the task-level gradient rows (benchmarks.validate.tasks); writes validation_out/
     (validation.json, validation.md, one chart per check) and fails if a check fails.
-    Arguments after `--` go to `python -m dax_physics.validate`, e.g. `-- --quick`."""
-    _install_local(session, ["dax-physics", "dax-tasks"], extras={"dax-physics": "plot"})
+    Arguments after `--` go to `python -m benchmarks.validate`, e.g. `-- --quick`."""
+    _install_local(session, ["dax-physics", "dax-tasks"])
+    session.install(*BENCHMARK_DEPS)
     args = session.posargs or ["--out", "validation_out"]
-    session.run("python", "-m", "dax_physics.validate", *args, env=PYTEST_ENV)
+    session.run("python", "-m", "benchmarks.validate", *args, env=PYTEST_ENV)
 
 
 @nox.session(name="physics-demo")
 def physics_demo(session: nox.Session) -> None:
     """The physics demo: prints its figures as JSON and writes a picture to demo_out/."""
-    _install_local(session, ["dax-physics"], extras={"dax-physics": "plot"})
+    _install_local(session, ["dax-physics"])
+    session.install(*BENCHMARK_DEPS)
     session.run(
-        "python", "-m", "dax_physics.tools.demo", "--out", "demo_out", *session.posargs,
+        "python", "-m", "benchmarks.physics_demo", "--out", "demo_out", *session.posargs,
         env=PYTEST_ENV
     )

@@ -11,7 +11,7 @@ cloth          the peers' 64x64 cloth drop, 1000 substeps (stencil path, no scat
 mpm_grad       d(mean height after 100 substeps)/d(initial velocities), fluid scene
 cloth_grad     d(mean height after 1000 substeps)/d(initial velocities), cloth scene
 task_grad      Whip-Rope, 8 rollouts x 10 env steps: the summed reward's gradient wrt the
-               actions (``dax_tasks.distributed.rollout_gradient_fn``)
+               actions (``dax_tasks.core.distributed.rollout_gradient_fn``)
 =============  ==========================================================================
 
 Each configuration runs in its own process: ``cpu`` (``JAX_PLATFORMS=cpu``), and for the
@@ -23,7 +23,7 @@ temporary ``.npz``. The parent then compares every configuration with ``cpu``: t
 absolute difference of the result arrays, the mean position's difference (the quantity the
 side-by-side agreement reads, in metres) and, for gradients, the relative difference.
 
-    python benchmarks/accelerator.py --configs cpu,gpu,gpu-det --out RESULT.json
+    python -m benchmarks.accelerator --configs cpu,gpu,gpu-det --out RESULT.json
 
 On a machine without an accelerator, ``--configs cpu`` checks CPU determinism alone.
 One JSON document to stdout and to ``--out``; progress to stderr.
@@ -39,9 +39,8 @@ import sys
 import tempfile
 import time
 
-from _report import write_report
-
-from dax_physics.tools.precision import DETERMINISTIC_FLAG
+from benchmarks._report import write_report
+from dax_physics.precision import DETERMINISTIC_FLAG
 
 WORKLOADS = ("mpm_fluid", "mpm_elastic", "cloth", "mpm_grad", "cloth_grad", "task_grad")
 CONFIGS = {
@@ -57,8 +56,8 @@ def build(name):
     import jax.numpy as jnp
 
     if name in ("mpm_fluid", "mpm_elastic", "mpm_grad"):
+        from benchmarks.physics import block_drop_scene
         from dax_physics import mpm
-        from dax_physics.tools.bench import block_drop_scene
 
         cfg, state = block_drop_scene("elastic" if name == "mpm_elastic" else "fluid",
                                       32, 8192)
@@ -80,7 +79,7 @@ def build(name):
         return jax.jit(lambda s: {"x": c.grid_rollout(cfg, cloth, s, 1000).x}), (state,)
     if name == "task_grad":
         import dax_tasks
-        from dax_tasks.distributed import rollout_gradient_fn
+        from dax_tasks.core.distributed import rollout_gradient_fn
 
         fn = rollout_gradient_fn(dax_tasks.make("whip_rope"), 8, 10)
         return fn, (jax.random.PRNGKey(0),)
@@ -91,7 +90,7 @@ def child(names, repeats, npz_path) -> dict:
     import jax
     import numpy as np
 
-    from dax_physics.tools.timing import timed_compile
+    from benchmarks._timing import timed_compile
 
     records, arrays = {}, {}
     for name in names:
@@ -176,7 +175,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     doc = {"benchmark": "accelerator", "workloads": names, "repeats": args.repeats,
-           "command": "python benchmarks/accelerator.py " + " ".join(
+           "command": "python -m benchmarks.accelerator " + " ".join(
                argv if argv is not None else sys.argv[1:]),
            "configs": {}, "versus_" + configs[0]: {}}
     with tempfile.TemporaryDirectory() as tmp:

@@ -7,7 +7,7 @@ task meshes), with the same contact through the 16-slot spatial hash (``self_sea
 interleaved (on, hash, off, on, ...) in this one process, so that a load shared with other
 processes falls on all alike; prints one JSON line per task with the medians and the
 ratios to the step without self-collision. Usage:
-    python benchmarks/cloth_self_collision.py [--tasks fold_cloth1,fold_tshirt] [--reps 9]
+    python -m benchmarks.cloth_self_collision [--tasks fold_cloth1,fold_tshirt] [--reps 9]
 
 Fold-Cloth-3 and the unfold tasks have Fold-Cloth-1's cloth, contact and substeps.
 """

@@ -8,7 +8,7 @@ its norm, the share of non-zero entries, and whether the forward pass stayed fin
 This is the issue-16 check "gradients finite over an episode", too slow for the test
 suite (cloth episodes with self-collision), so it is a script with JSON output:
 
-    python benchmarks/episode_gradients.py --tasks all --seeds 0,1 --out DIR/grads.jsonl
+    python -m benchmarks.episode_gradients --tasks all --seeds 0,1 --out DIR/grads.jsonl
 """
 
 from __future__ import annotations

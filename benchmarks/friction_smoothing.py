@@ -2,7 +2,7 @@
 law (``ClothScene.friction_model="smooth"``, see dax_physics.cloth.ClothConfig), the same
 runner, budget and seeds as ``dax-bench run --tasks fold_cloth1 --methods diff_mpc``.
 
-    python benchmarks/friction_smoothing.py --seeds 2 --quick --out bench_out/friction
+    python -m benchmarks.friction_smoothing --seeds 2 --quick --out bench_out/friction
 
 The smoothed task is a different physics model: its goal (the scripted fold) is computed
 with it, and the planner is scored on it, not on the Coulomb task. Prints one JSON line:
@@ -18,7 +18,7 @@ import statistics
 from pathlib import Path
 
 import dax_tasks
-from dax_algos.bench import run_grid
+from dax_algos.bench.runner import run_grid
 
 
 def main(argv=None) -> None:

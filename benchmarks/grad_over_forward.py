@@ -16,7 +16,7 @@ Each workload runs in a subprocess of its own, in ``--rounds`` rounds. With
 ``:``), every run is paired with the same run on that code, alternately, so that a slow
 phase of a shared machine hits both. One JSON document to stdout and to ``--out``.
 
-    python benchmarks/grad_over_forward.py --rounds 3 \\
+    python -m benchmarks.grad_over_forward --rounds 3 \\
         --out benchmarks/results/DATE-grad-over-forward.json
 """
 
@@ -30,7 +30,7 @@ import subprocess
 import sys
 import time
 
-from _report import write_report
+from benchmarks._report import write_report
 
 WORKLOADS = {
     "cloth": {},
@@ -54,8 +54,8 @@ def workload(name: str):
             out = c.grid_rollout(cfg, cloth, c.GridState(state.x, v0), 1000)
             return jnp.mean(out.x[2])
     else:
+        from benchmarks.physics import block_drop_scene
         from dax_physics import mpm
-        from dax_physics.tools.bench import block_drop_scene
 
         spec = WORKLOADS[name]
         cfg, state = block_drop_scene(spec["material"], 32, 8192)
@@ -73,7 +73,7 @@ def _worker(name: str, reps: int) -> dict:
     import numpy as np
 
     loss, arg = workload(name)
-    # timed here, not with dax_physics.tools.timing.grad_vs_forward, so that a baseline
+    # timed here, not with benchmarks._timing.grad_vs_forward, so that a baseline
     # checkout that predates that helper runs exactly the same measurement
     grad = jax.jit(jax.grad(loss)).lower(arg).compile()
     fwd = jax.jit(loss).lower(arg).compile()

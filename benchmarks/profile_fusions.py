@@ -17,7 +17,7 @@ wall time when two threads share a loop). Ops are sorted into:
 
 One JSON document to stdout and to ``--out``:
 
-    python benchmarks/profile_fusions.py --workload fluid-s1 --mode grad --top 25
+    python -m benchmarks.profile_fusions --workload fluid-s1 --mode grad --top 25
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ import statistics
 import tempfile
 import time
 
-from _report import write_report
 from grad_over_forward import WORKLOADS, workload
+
+from benchmarks._report import write_report
 
 #: ``  %name = shape opcode(...), ... op_name="..."`` of an instruction in the HLO text
 _INSTRUCTION = re.compile(r'^\s*(?:ROOT )?%(\S+) = (\S+) [\w-]+\(.*?op_name="([^"]*)"', re.M)

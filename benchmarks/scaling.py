@@ -2,8 +2,8 @@
 
 The workload is the literature's headline one: ``--rollouts`` (128) rollouts of
 ``--steps`` (80) env steps with uniform random actions, and the gradient of the summed
-reward wrt every action (:func:`dax_tasks.distributed.rollout_gradient_fn`: one jitted
-program, the batch split over the devices by :mod:`dax_tasks.sharding`). The task is
+reward wrt every action (:func:`dax_tasks.core.distributed.rollout_gradient_fn`: one jitted
+program, the batch split over the devices by :mod:`dax_tasks.core.sharding`). The task is
 Whip-Rope at its default resolution (an MPM rope of 288 particles, velocity actions; the
 JSON files of 2026-11-24 were measured on the Whip-Rope before dax-tasks 0.2.0, 16 substeps
 per env step, today's has 29): its per-step action gradient is the quantity the
@@ -24,7 +24,7 @@ cores slow the timings). One JSON document to stdout and to ``--out``.
 Forced host devices share the machine's cores: on CPU this measures what splitting costs
 and gains on the same cores, not the speed-up of more hardware.
 
-    python benchmarks/scaling.py --devices 1,2,4 --rollouts 128 --steps 80 --reps 3 \\
+    python -m benchmarks.scaling --devices 1,2,4 --rollouts 128 --steps 80 --reps 3 \\
         --out benchmarks/results/DATE-scaling.json
 """
 
@@ -39,7 +39,7 @@ import subprocess
 import sys
 import time
 
-from _report import write_report
+from benchmarks._report import write_report
 
 
 def child(args) -> dict:
@@ -47,8 +47,8 @@ def child(args) -> dict:
     import numpy as np
 
     import dax_tasks
-    from dax_physics.tools.timing import median_time, peak_rss_mb, timed_compile
-    from dax_tasks.distributed import rollout_gradient_fn
+    from benchmarks._timing import median_time, peak_rss_mb, timed_compile
+    from dax_tasks.core.distributed import rollout_gradient_fn
 
     load_before = os.getloadavg()[0]
     env = dax_tasks.make(args.task)
@@ -151,7 +151,7 @@ def main(argv=None) -> int:
            "platform": args.platform, "jax": jax.__version__,
            "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or
                        platform.machine()},
-           "command": "python benchmarks/scaling.py " + " ".join(
+           "command": "python -m benchmarks.scaling " + " ".join(
                a for a in (argv if argv is not None else sys.argv[1:])),
            "results": results}
     write_report(doc, args.out)

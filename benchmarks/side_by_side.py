@@ -6,7 +6,7 @@ Runs, interleaved in one process tree so that all engines see the same machine s
   ``cloth_warp.py``) with their own interpreter (``--peers-python``; they need numpy,
   taichi and warp-lang, which DaX must not depend on). They are run as subprocesses and
   only their ``RESULT {json}`` line is read: nothing of theirs is imported here;
-* DaX's own benchmark, ``python -m dax_physics.tools.bench ... --json``, with ``--dax-python``
+* DaX's own benchmark, ``python -m benchmarks.physics ... --json``, with ``--dax-python``
   (default: the interpreter running this script). Its output is the last stdout line
   that starts with ``{``.
 
@@ -48,8 +48,8 @@ Notes on the numbers.
 
 Usage (from anywhere)::
 
-    python benchmarks/side_by_side.py                     # all scenes, 3 rounds
-    python benchmarks/side_by_side.py --scenes fluid32,cloth --reps 5 --out bench_out/sbs.json
+    python -m benchmarks.side_by_side                     # all scenes, 3 rounds
+    python -m benchmarks.side_by_side --scenes fluid32,cloth --reps 5 --out bench_out/sbs.json
 
 Before/after a change of DaX: ``--dax-baseline-python PY`` adds the engine ``dax-baseline``,
 DaX's benchmark run by another interpreter (e.g. a wrapper that puts an older checkout's
@@ -76,7 +76,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from _report import write_report
+from benchmarks._report import write_report
 
 PEER_ENGINES = ("taichi", "warp")
 ALL_SCENES = ("fluid32", "elastic32", "fluid64", "cloth")
@@ -161,7 +161,7 @@ def dax_cmd(py: str, scene: dict, substeps: int) -> list[str]:
         return [
             py,
             "-m",
-            "dax_physics.tools.bench",
+            "benchmarks.physics",
             "mpm-block",
             "--material",
             scene["material"],
@@ -176,7 +176,7 @@ def dax_cmd(py: str, scene: dict, substeps: int) -> list[str]:
     return [
         py,
         "-m",
-        "dax_physics.tools.bench",
+        "benchmarks.physics",
         "cloth-drop",
         "--n",
         str(scene["n"]),

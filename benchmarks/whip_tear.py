@@ -11,7 +11,7 @@ cap is lifted. Reports, per speed, the largest over time of
   (rest length 1 cm) minus 1,
 
 all speeds in one vmapped rollout. Usage:
-    python benchmarks/whip_tear.py [--drive grid|none] [--E PA] [--substeps N] \
+    python -m benchmarks.whip_tear [--drive grid|none] [--E PA] [--substeps N] \
         [--scene dt=...,max_speed=...] [--steps 12] [--speeds 0.5,1,2,3]
 
 `--drive none --E 4e4 --substeps 16 --scene dt=6.25e-4,max_speed=2.5` is the rope and
@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from dax_tasks import whip_rope as wr
+from dax_tasks.tasks import whip_rope as wr
 
 
 def metrics(x, held, s_rest, slice_len=0.01):

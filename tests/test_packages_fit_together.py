@@ -163,3 +163,105 @@ def test_no_package_imports_another_packages_private_names(dist):
         if private:
             bad.append(f"{path.relative_to(REPO)}:{line}: {name} {private}")
     assert not bad, f"{dist} imports private names of other packages: {bad}"
+
+
+def _module_name(dist: str, path: Path) -> str:
+    parts = path.relative_to(REPO / "packages" / dist / "src").with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _internal_graph(dist: str) -> dict[str, set[str]]:
+    """Module -> the modules of the same package it imports (at the top or inside a
+    function). ``from a.b import c`` points at ``a.b.c`` when that is a module, else at
+    ``a.b``. Parent packages that an import runs first are not edges: a package's
+    ``__init__`` re-exporting its modules is not a circle."""
+    own = LAYERS[dist]
+    modules = {_module_name(dist, p) for p in _sources(dist)}
+    graph = {m: set() for m in modules}
+    for path, _, name, names in _imports(dist):
+        if name.split(".")[0] != own:
+            continue
+        src = _module_name(dist, path)
+        targets = {f"{name}.{n}" for n in names if f"{name}.{n}" in modules}
+        if not targets or len(targets) < len(names):
+            targets.add(name)
+        graph[src] |= {t for t in targets if t in modules and t != src}
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One import circle of ``graph`` as a list of modules (empty if there is none)."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for t in sorted(graph[m]):
+            if state.get(t) == 1:
+                return stack[stack.index(t):] + [t]
+            if t not in state and (found := visit(t)):
+                return found
+        state[m] = 2
+        stack.pop()
+        return []
+
+    for m in sorted(graph):
+        if m not in state and (found := visit(m)):
+            return found
+    return []
+
+
+@pytest.mark.parametrize("dist", DISTS)
+def test_no_import_circle_inside_the_package(dist):
+    circle = _cycle(_internal_graph(dist))
+    assert not circle, f"{dist}: modules import each other in a circle: {' -> '.join(circle)}"
+
+
+def _console_modules(dist: str) -> set[str]:
+    text = (REPO / "packages" / dist / "pyproject.toml").read_text()
+    block = re.search(r"^\[project\.scripts\]\n(.*?)(?:^\[|\Z)", text, re.M | re.S)
+    targets = re.findall(r'=\s*"([\w.]+):\w+"', block.group(1)) if block else []
+    return set(targets) | {t.rsplit(".", 1)[0] + ".__main__" for t in targets}
+
+
+@pytest.mark.parametrize("dist", DISTS)
+def test_no_library_module_is_a_script(dist):
+    """Benchmarks, studies and demos live in benchmarks/, not in the libraries: the only
+    modules that run as programs are the package's declared console commands."""
+    allowed = _console_modules(dist)
+    scripts = []
+    for path in _sources(dist):
+        if "__main__" in path.read_text() and _module_name(dist, path) not in allowed:
+            if re.search(r"^if __name__ == .__main__.:", path.read_text(), re.M) or \
+                    path.name == "__main__.py":
+                scripts.append(str(path.relative_to(REPO)))
+    assert not scripts, (f"{dist}: library modules that run as programs (move them to "
+                         f"benchmarks/ or declare a console command): {scripts}")
+
+
+#: Arrows inside a package: modules under the first prefix never import the second.
+INNER_ARROWS = {
+    "dax-physics": [],
+    "dax-tasks": [("dax_tasks.core", "dax_tasks.tasks"), ("dax_tasks.core", "dax_tasks.gym"),
+                  ("dax_tasks.viz", "dax_tasks.core"), ("dax_tasks.viz", "dax_tasks.tasks"),
+                  ("dax_tasks.tasks", "dax_tasks.gym")],
+    "dax-data": [],
+    "dax-algos": [(m, "dax_algos.bench") for m in (
+        "dax_algos.rl", "dax_algos.il", "dax_algos.planning", "dax_algos.registry",
+        "dax_algos.learner", "dax_algos.common", "dax_algos.nets", "dax_algos.toy")],
+}
+
+
+def _under(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+@pytest.mark.parametrize("dist", DISTS)
+def test_inner_arrows_point_one_way(dist):
+    """dax-algos: the methods never import the runner (dax_algos.bench); dax-tasks: the
+    core never imports the tasks or the Gymnasium adapter, the pictures neither."""
+    graph = _internal_graph(dist)
+    bad = [f"{src} imports {dst}" for src, dsts in graph.items() for dst in sorted(dsts)
+           for a, b in INNER_ARROWS[dist] if _under(src, a) and _under(dst, b)]
+    assert not bad, f"{dist}: imports against the package's inner arrows: {bad}"

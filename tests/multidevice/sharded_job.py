@@ -26,8 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from dax_algos import apg, cem_mpc, common, ppo, rl, shac, toy
-from dax_tasks.wrappers import training_env
+from dax_algos import common, learner, toy
+from dax_algos.planning import cem_mpc
+from dax_algos.rl import apg, ppo, shac
+from dax_tasks.core.wrappers import training_env
 
 #: An op that moves data between devices: present only in a program XLA partitioned.
 COLLECTIVE = re.compile(r"\b(all-reduce|all-gather|all-to-all|collective-permute|"
@@ -118,7 +120,7 @@ RL = {
 def rl_job(out, info):
     env = toy.point_reach(horizon=5)
     for name, (module, config) in RL.items():
-        episode = jax.jit(rl.learner_episode(module.make_train, module.make_act(env, config),
+        episode = jax.jit(learner.learner_episode(module.make_train, module.make_act(env, config),
                                              env, config, config.n_eval))
         key = jax.random.PRNGKey(0)
         episode, talks = compiled(episode, key, env.default_params)

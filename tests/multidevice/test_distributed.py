@@ -1,5 +1,5 @@
 """Two local CPU processes joined by ``jax.distributed`` (``python -m
-dax_tasks.distributed``) run one batch of Fold-Cloth-1 rollouts (coarse: 4 x 4 vertices,
+dax_tasks.core.distributed``) run one batch of Fold-Cloth-1 rollouts (coarse: 4 x 4 vertices,
 12 substeps per action), forward and backward, split over both processes' devices; both
 gather the same result, bit for bit, and it equals the single-process run within
 ``rtol=1e-5, atol=1e-6`` (the same float-rounding reasons as in ``test_sharding.py``: the
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from multidevice_helpers import free_port, run_all
 
-ARGS = ["-m", "dax_tasks.distributed", "--task", "fold_cloth1", "--batch", "4",
+ARGS = ["-m", "dax_tasks.core.distributed", "--task", "fold_cloth1", "--batch", "4",
         "--steps", "3", "--seed", "0", "--set", "substeps=12", "--set", "scene.n=4",
         "--set", "scene.settle_substeps=6", "--no-goal-cache"]
 TIMEOUT = 240

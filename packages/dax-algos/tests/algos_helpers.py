@@ -72,7 +72,8 @@ def cheap_cloth_overrides(name="fold_cloth1", **extra):
 def make_nan_planner(task, config):
     """A broken planner for the runner's tests: random actions times NaN (the task's
     finite flag turns false, so its rows must be ``failed``)."""
-    from dax_algos import common, reference
+    from dax_algos import common
+    from dax_algos.planning import reference
 
     rnd = reference.make_random(task, config)
 
@@ -86,7 +87,8 @@ def make_nan_planner(task, config):
 def register_nan_planner(overwrite: bool = False) -> None:
     """Register :func:`make_nan_planner` as the method ``nan_actions`` (unregister it with
     ``registry.unregister("nan_actions")``)."""
-    from dax_algos import reference, registry
+    from dax_algos import registry
+    from dax_algos.planning import reference
 
     registry.register(registry.planner_method(
         "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}),

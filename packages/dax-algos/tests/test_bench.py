@@ -6,14 +6,15 @@ import sys
 import pytest
 from algos_helpers import cheap_cloth_overrides, register_nan_planner
 
-from dax_algos import bench, registry
+from dax_algos import registry
+from dax_algos.bench import runner
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,diff_mpc"
 
 
 def _run(out, seeds=2, **kw):
-    return bench.run_grid(
+    return runner.run_grid(
         TASK, METHODS, seeds=seeds, out=out, quick=True,
         task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
         method_overrides={"cem_mpc": dict(population=6, elites=2, iterations=1),
@@ -35,7 +36,7 @@ def test_runner_writes_csv_markdown_and_charts(grid):
     out, rows = grid
     with open(out / "results.csv") as f:
         header = next(csv.reader(f))
-    assert tuple(header) == bench.COLUMNS
+    assert tuple(header) == runner.COLUMNS
     assert len(rows) == 10, rows
     md = (out / "results.md").read_text()
     assert f"| method | {TASK} |" in md, md
@@ -78,8 +79,8 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
     out, rows = grid
     before = (out / "results.csv").read_text()
     calls = []
-    original = bench._run_method
-    monkeypatch.setattr(bench, "_run_method",
+    original = runner._run_method
+    monkeypatch.setattr(runner, "_run_method",
                         lambda *a, **k: calls.append(a[2:4]) or original(*a, **k))
     register_nan_planner(overwrite=True)
     again = _run(out)
@@ -93,41 +94,41 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
 
 def test_incomplete_last_line_is_dropped(tmp_path):
     path = tmp_path / "results.csv"
-    bench.append_row(path, {"task": TASK, "method": "random", "seed": 0, "budget": "quick",
+    runner.append_row(path, {"task": TASK, "method": "random", "seed": 0, "budget": "quick",
                             "status": "ok", "score": 0.5})
     with open(path, "a") as f:
         f.write("fold_cloth1,random,1,qu")  # an interrupted write
-    rows = bench.read_rows(path)
+    rows = runner.read_rows(path)
     assert [r["seed"] for r in rows] == ["0"]
     assert path.read_text().endswith("\n")
 
 
 def test_unknown_names_raise_value_error_listing_valid_ones():
     with pytest.raises(ValueError, match="unknown task 'nope'.*push_rope"):
-        bench.resolve_tasks("push_rope,nope")
+        runner.resolve_tasks("push_rope,nope")
     with pytest.raises(ValueError, match="unknown method 'nope'.*cem_mpc"):
-        bench.resolve_methods("cem_mpc,nope")
+        runner.resolve_methods("cem_mpc,nope")
     with pytest.raises(ValueError, match="seeds"):
-        bench.run_grid(TASK, "random", seeds=0)
+        runner.run_grid(TASK, "random", seeds=0)
 
 
 def test_cli_unknown_name_is_a_one_line_error_with_exit_2(tmp_path, capsys):
-    assert bench.main(["run", "--tasks", "nope", "--out", str(tmp_path)]) == 2
+    assert runner.main(["run", "--tasks", "nope", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("dax-bench: error: unknown task") and "\n" not in err, err
-    assert bench.main(["run", "--methods", "all,nope", "--out", str(tmp_path)]) == 2
+    assert runner.main(["run", "--methods", "all,nope", "--out", str(tmp_path)]) == 2
     assert not (tmp_path / "results.csv").exists()
 
 
 def test_backend_ray_without_ray_is_a_one_line_error_with_exit_2(tmp_path, capsys,
                                                                   monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
-    assert bench.main(["run", "--tasks", TASK, "--methods", "random", "--backend", "ray",
+    assert runner.main(["run", "--tasks", TASK, "--methods", "random", "--backend", "ray",
                        "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("dax-bench: error: --backend ray needs Ray") and "\n" not in err
     assert "pip install 'dax-algos[ray]'" in err, err
-    assert bench.main(["run", "--tasks", TASK, "--methods", "random", "--ray-address", "auto",
+    assert runner.main(["run", "--tasks", TASK, "--methods", "random", "--ray-address", "auto",
                        "--out", str(tmp_path)]) == 2  # an address, but the local backend
     assert "--ray-address is for --backend ray" in capsys.readouterr().err
     assert not (tmp_path / "results.csv").exists()

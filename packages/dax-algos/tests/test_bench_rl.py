@@ -10,7 +10,8 @@ import pytest
 from algos_helpers import cheap_cloth_overrides
 
 import dax_tasks
-from dax_algos import bench, learning, rl, trained
+from dax_algos import learner
+from dax_algos.bench import learning, runner, trained
 
 TASK = "fold_cloth1"
 METHODS = "ppo,apg,shac"
@@ -22,7 +23,7 @@ TINY = {"ppo": dict(total_env_steps=48, num_envs=8, unroll_length=2, minibatches
 
 
 def _run(out, seeds=2):
-    return bench.run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
+    return runner.run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
                           task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
                           method_overrides=TINY, cache_goal=False, progress=False)
 
@@ -69,7 +70,7 @@ def test_policy_file_reloads_and_is_refused_for_another_task(grid):
     env = dax_tasks.make(TASK, cache_goal=False, **cheap_cloth_overrides(horizon=2))
     act, policy = trained.load_trained(path, env, "ppo")
     obs, state = env.reset(jax.random.PRNGKey(0))
-    z = act(policy, rl.features(obs, state.t, env.horizon))
+    z = act(policy, learner.features(obs, state.t, env.horizon))
     assert z.shape == (env.spec.action_dim,) and np.all(np.abs(np.asarray(z)) <= 1)
     other = dax_tasks.make(TASK, cache_goal=False, **cheap_cloth_overrides(horizon=3))
     with pytest.raises(ValueError, match="task_fingerprint"):
@@ -87,7 +88,7 @@ def test_resume_runs_nothing_twice(grid, monkeypatch):
     before = (out / "results.csv").read_text()
     curves_before = learning.learning_path(out, TASK).read_text()
     calls = []
-    monkeypatch.setattr(bench, "_learner_result", lambda *a, **k: calls.append(a[2]))
+    monkeypatch.setattr(runner, "_learner_result", lambda *a, **k: calls.append(a[2]))
     again = _run(out)
     assert calls == [] and len(again) == len(rows)
     assert (out / "results.csv").read_text() == before

@@ -14,8 +14,9 @@ from algos_helpers import cheap_cloth_overrides
 
 import dax_data
 import dax_tasks
-from dax_algos import bench, common, demos, ild, registry, rl, toy, trained, transporter
-from dax_algos.tools import eval_trained
+from dax_algos import common, learner, registry, toy
+from dax_algos.bench import runner, trained
+from dax_algos.il import demos, ild, transporter
 
 # ----------------------------------------------------------------------------- Transporter
 
@@ -111,7 +112,7 @@ def _trajectory(env, config, policy, key):
     _, state = env.reset(key)
 
     def body(s, _):
-        z = act(policy, rl.features(env.observe(s.physics), s.t, env.horizon))
+        z = act(policy, learner.features(env.observe(s.physics), s.t, env.horizon))
         _, s2, _, _, _ = env.step(s, common.to_action(env, z))
         return s2, env.object_points(s2.physics)
 
@@ -237,7 +238,7 @@ def test_runner_makes_demonstrations_trains_evaluates_and_keeps_policies(tmp_pat
                                 "ild": dict(total_env_steps=16, num_envs=2, n_eval=2,
                                             policy_hidden=(16,))},
               cache_goal=False, progress=False, demo_dir=demo_dir)
-    rows = bench.run_grid("fold_cloth1", "transporter,ild", **kw)
+    rows = runner.run_grid("fold_cloth1", "transporter,ild", **kw)
     assert [(r["method"], r["status"]) for r in rows] == [("transporter", "ok"),
                                                            ("ild", "ok")], rows
     files = sorted(p.name for p in demo_dir.glob("*.h5"))
@@ -260,7 +261,7 @@ def test_runner_makes_demonstrations_trains_evaluates_and_keeps_policies(tmp_pat
         act, policy = trained.load_trained(path, env, method, config)
         assert policy.params is not None
         # replaying the saved policy rollout by rollout gives the row's score back
-        rec = eval_trained.evaluate_file(path, "fold_cloth1", method, 0, env=env)
+        rec = trained.evaluate_trained(path, env, method, 0)
         row = next(r for r in rows if r["method"] == method)
         assert rec["n_rollouts"] == 2 and abs(rec["mean"] - float(row["score"])) < 1e-5, (
             rec, row["score"])

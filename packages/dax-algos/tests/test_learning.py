@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from dax_algos import learning
+from dax_algos.bench import learning
 
 
 def _curve(method, seed, n=4, offset=0.0, budget="quick"):

@@ -9,7 +9,8 @@ import pytest
 from algos_helpers import ToyTask, cheap_cloth_overrides
 
 import dax_algos
-from dax_algos import cem_mpc, common, diff_cem_mpc, diff_mpc, reference
+from dax_algos import common
+from dax_algos.planning import cem_mpc, diff_cem_mpc, diff_mpc, reference
 
 
 @pytest.fixture

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from dax_algos import policy_io
+from dax_algos.bench import policy_io
 from dax_tasks.io import temporaries
 
 PARAMS = {"mean": {"layers": {"0": {"kernel": np.arange(12, dtype=np.float32).reshape(3, 4),
@@ -93,7 +93,7 @@ def test_failed_save_leaves_the_old_file_and_no_temporaries(saved, monkeypatch):
     def boom(*a, **k):
         raise OSError("disk full")
 
-    import dax_algos.policy_io as mod
+    import dax_algos.bench.policy_io as mod
 
     monkeypatch.setattr(mod, "atomic_write", lambda path, data: _write_then_fail(path, data))
     with pytest.raises(OSError, match="disk full"):

@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dax_algos import apg, ppo, rl, shac, toy
+from dax_algos import learner, toy
+from dax_algos.rl import apg, ppo, shac
 
 CONFIGS = {
     "ppo": (ppo, ppo.PPOConfig(total_env_steps=20_000, num_envs=16, unroll_length=10,
@@ -34,7 +35,7 @@ def optimum(env):
 @pytest.mark.parametrize("name", list(CONFIGS))
 def test_method_learns_the_toy_task_deterministically(env, optimum, name):
     module, config = CONFIGS[name]
-    episode = jax.jit(rl.learner_episode(module.make_train, module.make_act(env, config), env,
+    episode = jax.jit(learner.learner_episode(module.make_train, module.make_act(env, config), env,
                                          config, config.n_eval))
     out = episode(jax.random.PRNGKey(0), env.default_params)
     ret = float(jnp.sum(out.episode.r_gt))  # mean return of the 20 evaluation rollouts
@@ -50,7 +51,7 @@ def test_method_learns_the_toy_task_deterministically(env, optimum, name):
 def test_seeds_vmap_and_differ(env):
     module, config = CONFIGS["apg"]
     config = apg.APGConfig(**{**vars(config), "total_env_steps": 400, "n_eval": 2})
-    episode = rl.learner_episode(module.make_train, module.make_act(env, config), env,
+    episode = learner.learner_episode(module.make_train, module.make_act(env, config), env,
                                  config, config.n_eval)
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     batched = jax.jit(jax.vmap(episode, in_axes=(0, None)))(keys, env.default_params)
@@ -82,7 +83,7 @@ def test_nonfinite_gradients_are_counted_and_skipped(env, name):
 
 
 def test_training_reward_has_aux_and_evaluation_does_not(env):
-    params = rl.training_params(env.default_params, 1.0)
+    params = learner.training_params(env.default_params, 1.0)
     _, state = env.reset(jax.random.PRNGKey(0), params)
     _, _, reward, _, info = env.step(state, jnp.zeros(3), params)
     assert float(reward) == pytest.approx(float(info["r_gt"] + info["r_aux"]))
@@ -110,7 +111,7 @@ def test_td_lambda_matches_a_direct_computation():
     done = np.zeros((5, 2), bool)
     done[2, 0] = True
     last = rng.normal(size=2)
-    g = np.asarray(rl.td_lambda(jnp.asarray(r), jnp.asarray(v), jnp.asarray(done),
+    g = np.asarray(learner.td_lambda(jnp.asarray(r), jnp.asarray(v), jnp.asarray(done),
                                 jnp.asarray(last), 0.9, 0.8))
     want = np.zeros((5, 2))
     nxt_g, vals = last.copy(), np.vstack([v[1:], last[None]])

@@ -16,7 +16,7 @@ import pytest
 import dax_data
 import dax_tasks
 from dax_data import fileformat as ff
-from dax_tasks import goals
+from dax_tasks.core import goals
 
 TASK = "fold_cloth1"  # cheap, with an expert; default (full) resolution
 _SCRIPT = Path(sys.executable).with_name("dax-data")

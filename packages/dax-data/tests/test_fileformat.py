@@ -170,7 +170,7 @@ def _as_version_1(path):
     with h5py.File(path, "a") as f:
         spec = json.loads(f.attrs["spec"])
         spec.pop("scene_type")
-        spec.update(lam=10.0, aux_reward=False, scene_class="dax_tasks._cloth.ClothScene")
+        spec.update(lam=10.0, aux_reward=False, scene_class="dax_tasks.tasks._cloth.ClothScene")
         spec["scene"]["stretch"] = 10.0
         f.attrs["spec"] = json.dumps(spec)
         f.attrs["format_version"] = 1
@@ -207,7 +207,7 @@ def pictures(tmp_path_factory):
 
 
 def test_pictures_are_stored_per_step_as_the_observation_wrapper_renders_them(pictures):
-    from dax_tasks.wrappers import ObservationMode, rgb_as_float
+    from dax_tasks.core.wrappers import ObservationMode, rgb_as_float
 
     env = make_task("fold_cloth1")
     meta, episodes = dax_data.load(pictures, as_jax=True)

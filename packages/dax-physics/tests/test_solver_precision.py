@@ -1,12 +1,13 @@
 """Every matrix product in the solvers runs at full float32 precision.
 
-Why, and how it is checked on CPU: :mod:`dax_physics.tools.precision`. These tests lower
+Why, and how it is checked on CPU: :mod:`dax_physics.precision`. These tests lower
 the forward and reverse passes of the solvers (MPM with a grasping collider, the
 bounded-collider grid path, cloth with self-collision) and require HIGHEST on every dot.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import jax
@@ -15,8 +16,7 @@ import numpy as np
 
 from dax_physics import cloth as c
 from dax_physics import colliders, materials, mpm, sampling
-from dax_physics.tools.bench_cloth import fold_scene
-from dax_physics.tools.precision import DETERMINISTIC_FLAG, deterministic_gpu_ops, dots
+from dax_physics.precision import DETERMINISTIC_FLAG, deterministic_gpu_ops, dots
 
 
 def assert_full_precision(fn, *args, least=1):
@@ -68,8 +68,12 @@ def test_bounded_collider_grid_path_uses_full_precision():
 def test_cloth_with_self_collision_its_gradient_and_energy_use_full_precision():
     """The cloth step has no dot today (spring sums are elementwise); this keeps any that
     is added at full precision."""
-    cfg, cl, st, *_ = fold_scene(n=6)
-    assert cfg.thickness > 0, "the scene should have self-collision on"
+    cl = c.square_cloth(6, size=(0.3, 0.3), density=0.2, stretch=50.0, bend=0.2,
+                        damping=0.02)
+    cfg = c.ClothConfig(dt=1.0, thickness=0.06, self_stiffness=50.0, self_damping=0.01,
+                        strain_limit=0.05)
+    cfg = dataclasses.replace(cfg, dt=0.9 * c.max_stable_dt(cfg, cl))
+    st = c.ClothState.create(cl)
 
     def loss(x):
         return jnp.sum(c.rollout(cfg, cl, st.replace(x=x), 3).x ** 2)

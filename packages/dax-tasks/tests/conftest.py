@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import dax_tasks
-from dax_physics.tools.precision import deterministic_gpu_ops
-from dax_tasks import push_rope
-from dax_tasks.wrappers import VmapWrapper
+from dax_physics.precision import deterministic_gpu_ops
+from dax_tasks.core.wrappers import VmapWrapper
+from dax_tasks.tasks import push_rope
 
 deterministic_gpu_ops()
 

@@ -21,8 +21,9 @@ import pytest
 from conftest import small_overrides
 
 import dax_tasks
-from dax_tasks import checks, goals, io
-from dax_tasks.cloth_tasks import ClothScene
+from dax_tasks import io
+from dax_tasks.core import checks, goals
+from dax_tasks.tasks.cloth import ClothScene
 
 CHEAP_CLOTH = dict(scene=dataclasses.replace(dax_tasks.get_spec("fold_cloth1").scene, n=6,
                                              settle_substeps=200), substeps=400)

@@ -14,7 +14,8 @@ import pytest
 from conftest import Jitted
 
 import dax_tasks
-from dax_tasks import _cloth, cloth_tasks
+from dax_tasks.tasks import _cloth
+from dax_tasks.tasks import cloth as cloth_tasks
 
 NAMES = ("fold_cloth1", "fold_cloth3", "fold_tshirt", "unfold_cloth1", "unfold_cloth3")
 

@@ -7,7 +7,8 @@ import pytest
 from conftest import small_overrides
 
 import dax_tasks
-from dax_tasks import goals, push_rope
+from dax_tasks.core import goals
+from dax_tasks.tasks import push_rope
 
 
 @pytest.fixture()
@@ -54,8 +55,7 @@ def test_cached_goal_is_used_instead_of_recomputing(cache, env):
 def test_fingerprint_covers_every_spec_field_and_the_code(monkeypatch):
     import dataclasses
 
-    from dax_tasks import spec as spec_module
-
+    from dax_tasks.core import spec as spec_module
     base = _spec()
     assert base.fingerprint() == _spec().fingerprint()
     finer = dataclasses.replace(base, scene=dataclasses.replace(base.scene, ppc=4))

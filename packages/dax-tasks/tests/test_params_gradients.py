@@ -61,8 +61,7 @@ def _check(total, actions, x0, rtol, what, h=H):
 
 
 def test_gradients_wrt_the_ropes_youngs_modulus_and_the_actions():
-    from dax_tasks import whip_rope as wr
-
+    from dax_tasks.tasks import whip_rope as wr
     scene = dataclasses.replace(wr.WHIP_ROPE.scene, throw=((0, 8, -0.015, 0.0, 0.005),))
     env = dax_tasks.make("whip_rope", substeps=8, horizon=8, scene=scene, cache_goal=False)
     pull = jnp.asarray([[-0.75, 0.0, 0.0]] * 6)  # along the rope, away from it

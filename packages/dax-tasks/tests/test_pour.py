@@ -14,7 +14,7 @@ import pytest
 from conftest import Jitted
 
 import dax_tasks
-from dax_tasks import pour
+from dax_tasks.tasks import pour
 
 STEPS = 22  # steps of the short pour
 

@@ -10,7 +10,7 @@ import pytest
 from conftest import Jitted
 
 import dax_tasks
-from dax_tasks import push_rope
+from dax_tasks.tasks import push_rope
 
 FAR = np.asarray([0.5, 0.5, 0.1, 0.5, 0.5, 0.1], np.float32)  # a zero-length push, off rope
 

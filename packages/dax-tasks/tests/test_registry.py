@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import dax_tasks
-from dax_tasks import checks
+from dax_tasks.core import checks
 
 NINE = {"pour_water", "pour_soup", "push_rope", "whip_rope", "fold_cloth1", "fold_cloth3",
         "fold_tshirt", "unfold_cloth1", "unfold_cloth3"}
@@ -27,7 +27,7 @@ def test_unknown_name_error_lists_valid_names():
 def test_declared_but_unimplemented_task_says_what_is_available(monkeypatch):
     from types import MappingProxyType
 
-    from dax_tasks import registry
+    from dax_tasks.core import registry
 
     modules = dict(registry._MODULES)
     modules["fold_cloth1"] = ("dax_tasks.no_such_module", "ClothTask", "FOLD_CLOTH1")
@@ -121,7 +121,7 @@ def test_bad_keys_and_params_are_refused_at_the_boundary(task):
 
 
 def test_task_without_expert_says_so():
-    from dax_tasks import push_rope
+    from dax_tasks.tasks import push_rope
 
     class NoExpert(push_rope.PushRope):
         expert = dax_tasks.Env.expert

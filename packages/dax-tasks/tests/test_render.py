@@ -7,21 +7,21 @@ import pytest
 from PIL import Image
 
 import dax_tasks
-from dax_tasks import render
-from dax_tasks.wrappers import ObservationMode, VmapWrapper
+from dax_tasks import viz
+from dax_tasks.core.wrappers import ObservationMode, VmapWrapper
 
 
 def test_height_map_puts_points_where_they_are():
     window = (0.0, 1.0, 0.0, 1.0, 0.0)
     pts = jnp.asarray([[0.05, 0.95, 0.3], [0.95, 0.05, 0.1], [0.95, 0.05, 0.2],
                        [2.0, 2.0, 5.0]])  # the last is outside the window
-    hm = np.asarray(render.height_map(pts, window, res=10))
+    hm = np.asarray(viz.height_map(pts, window, res=10))
     assert hm[0, 0] == pytest.approx(0.3)          # top-left: small x, large y
     assert hm[9, 9] == pytest.approx(0.2)          # bottom-right keeps the highest point
     assert np.count_nonzero(hm) == 2
-    flat = np.asarray(render.height_map(jnp.asarray([[0.5, 0.5, 0.0]]), window, 10))
-    assert flat.max() == pytest.approx(render.MIN_HEIGHT)  # a point on the table still shows
-    disc = np.asarray(render.height_map(jnp.asarray([[0.55, 0.55, 0.1]]), window, 10, 0.2))
+    flat = np.asarray(viz.height_map(jnp.asarray([[0.5, 0.5, 0.0]]), window, 10))
+    assert flat.max() == pytest.approx(viz.MIN_HEIGHT)  # a point on the table still shows
+    disc = np.asarray(viz.height_map(jnp.asarray([[0.55, 0.55, 0.1]]), window, 10, 0.2))
     assert 9 <= np.count_nonzero(disc) <= 16       # a 0.2 m disc covers about pi*2^2 pixels
 
 
@@ -54,9 +54,9 @@ def test_observation_modes_batched_under_jit(fold, mode, shape, dtype):
 
 def test_render_gives_frames_with_the_gripper(fold):
     _, state = jax.jit(VmapWrapper(fold, batch_size=2).reset)(jax.random.PRNGKey(0))
-    frames = render.render(fold, state, res=32)
+    frames = viz.render(fold, state, res=32)
     assert frames.shape == (2, 32, 32, 3) and frames.dtype == np.uint8
-    red = np.all(frames[0] == np.asarray(render.GRIPPER_RGB, np.uint8), axis=-1)
+    red = np.all(frames[0] == np.asarray(viz.GRIPPER_RGB, np.uint8), axis=-1)
     assert red.any(), "the gripper marker is missing"
 
 
@@ -69,30 +69,30 @@ def test_unknown_observation_mode_is_refused(fold):
 
 def test_record_episode_and_gif(tmp_path):
     env = dax_tasks.make("fold_cloth1", cache_goal=False)
-    frames = render.record_episode(env, res=48)
+    frames = viz.record_episode(env, res=48)
     assert len(frames) == env.horizon + 1
     assert not np.array_equal(frames[0], frames[-1]), "the expert's fold changed nothing"
-    path = render.save_video(frames, tmp_path / "ep.gif", fps=5)
+    path = viz.save_video(frames, tmp_path / "ep.gif", fps=5)
     with Image.open(path) as gif:
         assert gif.n_frames == len(frames) and gif.size == (48, 48)
     assert not list(tmp_path.glob(".*.tmp")), "temporary file left behind"
     with pytest.raises(ValueError, match="GIF"):
-        render.save_video(frames, tmp_path / "ep.mp4")
+        viz.save_video(frames, tmp_path / "ep.mp4")
     with pytest.raises(ValueError, match="uint8"):
-        render.save_video([np.zeros((4, 4, 3), np.float32)], tmp_path / "bad.gif")
+        viz.save_video([np.zeros((4, 4, 3), np.float32)], tmp_path / "bad.gif")
 
 
 def test_textured_picture_shows_each_pixels_highest_point_in_its_colour():
     window = (0.0, 1.0, 0.0, 1.0, 0.0)
     pts = jnp.asarray([[0.05, 0.95, 0.01], [0.05, 0.95, 0.02], [0.95, 0.05, 0.0]])
     colors = np.asarray([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], np.float32)
-    img = np.asarray(render.rgb_image(pts, None, window, res=10, colors=colors))
+    img = np.asarray(viz.rgb_image(pts, None, window, res=10, colors=colors))
     # top-left: the higher (green) point wins, brightened by its height (0.02 of 0.05)
     assert tuple(img[0, 0]) == (0, round(255 * (0.7 + 0.3 * 0.4)), 0), img[0, 0]
-    assert tuple(img[9, 9]) == (0, 0, round(255 * (0.7 + 0.3 * render.MIN_HEIGHT / 0.05)))
-    assert tuple(img[5, 5]) == render.TABLE_RGB  # no gripper marker without an effector
+    assert tuple(img[9, 9]) == (0, 0, round(255 * (0.7 + 0.3 * viz.MIN_HEIGHT / 0.05)))
+    assert tuple(img[5, 5]) == viz.TABLE_RGB  # no gripper marker without an effector
     with pytest.raises(ValueError, match=r"colors must be \(N, 3\) for 3 points"):
-        render.rgb_image(pts, None, window, res=10, colors=colors[:2])
+        viz.rgb_image(pts, None, window, res=10, colors=colors[:2])
 
 
 def test_cloth_and_rope_textures_tell_their_ends_apart(fold):
@@ -101,7 +101,7 @@ def test_cloth_and_rope_textures_tell_their_ends_apart(fold):
     corners = colors[[0, 10, 110, 120]]  # the four corners of the 11 x 11 mesh
     gaps = np.linalg.norm(corners[:, None] - corners[None], axis=-1)
     assert np.all(gaps + np.eye(4) > 0.3), f"two corners look alike: {gaps}"
-    ramp = render.ramp_colors(np.linspace(0.0, 0.24, 5))
+    ramp = viz.ramp_colors(np.linspace(0.0, 0.24, 5))
     assert np.linalg.norm(ramp[0] - ramp[-1]) > 0.5
 
 
@@ -123,6 +123,6 @@ def test_goal_image_appends_the_goal_picture_and_pixels_map_to_the_table(fold):
     px = camera.to_pixel(xy, 32)
     np.testing.assert_allclose(np.asarray(camera.to_table(px, 32)), np.asarray(xy), atol=1e-6)
     # a point lands in the pixel the height map splats it into
-    hm = np.asarray(render.height_map(jnp.asarray([[0.1, -0.05, 0.03]]), camera.window, 32))
+    hm = np.asarray(viz.height_map(jnp.asarray([[0.1, -0.05, 0.03]]), camera.window, 32))
     row, col = np.round(np.asarray(px[0])).astype(int)
     assert hm[row, col] == pytest.approx(0.03 - camera.window[4])

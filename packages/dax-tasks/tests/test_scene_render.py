@@ -1,7 +1,7 @@
-"""The oblique scene pictures for people (dax_tasks.scene, re-exported by dax_tasks.render):
+"""The oblique scene pictures for people (dax_tasks.viz.scene, re-exported by dax_tasks.viz):
 projection, depth order, a folded cloth's two sides, the goal overlay, determinism, the
 GIF/PNG/filmstrip writers and bad input. Tiny synthetic scenes, so the whole file runs in
-seconds; the real tasks' pictures are made by ``python -m dax_tasks.tools.scene_demo``."""
+seconds; the real tasks' pictures are made by ``python -m benchmarks.scene_demo``."""
 
 import jax
 import jax.numpy as jnp
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dax_tasks import Env, TaskSpec, render
-from dax_tasks.env import EnvState
-from dax_tasks.render import SceneView, filmstrip, goal_frame, save_animation, scene_frames
+from dax_tasks import Env, TaskSpec, viz
+from dax_tasks.core.env import EnvState
+from dax_tasks.viz import SceneView, filmstrip, goal_frame, save_animation, scene_frames
 
 RES = (320, 240)
 RED, BLUE, GREEN = (0.9, 0.1, 0.1), (0.1, 0.1, 0.9), (0.1, 0.7, 0.1)
@@ -192,11 +192,11 @@ def test_gif_round_trip_is_small_and_keeps_first_and_last(tmp_path):
         last = np.asarray(im.convert("RGB"), int)
     assert np.abs(first - frames[0]).mean() < 4 and np.abs(last - frames[-1]).mean() < 4
     assert path.stat().st_size < 40_000
-    assert list(render.subsample(10, 4)) == [0, 3, 6, 9]
+    assert list(viz.subsample(10, 4)) == [0, 3, 6, 9]
     strip = filmstrip(frames, k=4, goal_frame=frames[0])
     assert strip.shape == (60, 5 * 80, 3) and strip.dtype == np.uint8
     assert filmstrip(frames, k=3).shape == (60, 3 * 80, 3)
-    png = render.save_png(strip, tmp_path / "strip.png")
+    png = viz.save_png(strip, tmp_path / "strip.png")
     with Image.open(png) as im:
         assert np.array_equal(np.asarray(im.convert("RGB")), strip)
 
@@ -220,7 +220,7 @@ def test_bad_input_raises_one_line_errors(tmp_path):
         (lambda: filmstrip(np.zeros((3, 8, 8, 3), np.uint8), k=0), "k must"),
         (lambda: filmstrip(np.zeros((3, 8, 8, 3), np.uint8),
                            goal_frame=np.zeros((4, 8, 3), np.uint8)), "goal_frame"),
-        (lambda: render.save_png(np.zeros((8, 8, 3), np.uint8), tmp_path / "a.jpg"), "PNG"),
+        (lambda: viz.save_png(np.zeros((8, 8, 3), np.uint8), tmp_path / "a.jpg"), "PNG"),
     ]
     for call, match in cases:
         with pytest.raises(ValueError, match=match) as err:

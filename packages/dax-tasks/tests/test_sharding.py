@@ -1,4 +1,4 @@
-"""dax_tasks.sharding and dax_tasks.distributed in this (one-device) process: the no-op on
+"""dax_tasks.core.sharding and dax_tasks.core.distributed in this (one-device) process: the no-op on
 one device, the errors for bad input. The multi-device behaviour (4 forced CPU devices,
 two processes) is tested in tests/multidevice (``nox -s multidevice``), each in fresh
 processes since the device count is fixed when JAX starts."""
@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dax_tasks import distributed, sharding
+from dax_tasks.core import distributed, sharding
 
 one_device = pytest.mark.skipif(jax.device_count() != 1, reason="needs one device")
 

@@ -1,6 +1,6 @@
 """The tasks' steps, action gradients and experts run their matrix products at full float32
 precision (JAX's default would round them to TF32 on GPUs, bfloat16 on TPUs; see
-:mod:`dax_physics.tools.precision`). Lowering only: nothing is compiled. One task per code
+:mod:`dax_physics.precision`). Lowering only: nothing is compiled. One task per code
 path: a pouring task (MPM, bowl colliders on the grid), a rope task (MPM, gripper), the
 folding and the unfolding experts (the cloth's fitted pose, the aligned goal in D)."""
 
@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import pytest
 
 import dax_tasks
-from dax_physics.tools.precision import dots
+from dax_physics.precision import dots
 
 
 @pytest.mark.parametrize("name", ["pour_water", "whip_rope", "fold_cloth3", "unfold_cloth1"])

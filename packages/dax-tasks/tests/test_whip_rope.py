@@ -15,7 +15,7 @@ from conftest import Jitted
 
 import dax_tasks
 from dax_physics.mpm import total_mass
-from dax_tasks import whip_rope as wr
+from dax_tasks.tasks import whip_rope as wr
 
 HORIZON = 16
 SMALL_THROW = ((0, 8, -0.015, 0.0, 0.005), (8, 6, 0.0, 0.012, 0.0))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import dax_tasks
-from dax_tasks.wrappers import AutoReset, EpisodeStatistics, VmapWrapper, training_env
+from dax_tasks.core.wrappers import AutoReset, EpisodeStatistics, VmapWrapper, training_env
 
 
 @pytest.fixture(scope="module")

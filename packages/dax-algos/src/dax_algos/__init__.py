@@ -1,12 +1,13 @@
 """Learning and planning methods, reference rows and the benchmark runner for the DaX
 tasks.
 
-Methods (``dax_algos.registry``): reinforcement learning ``ppo``, ``apg``, ``shac`` (each
-``make_train(env, config) -> train(key, params)``, pure and jittable whole; networks in
-Flax NNX, :mod:`dax_algos.nets`); planners ``cem_mpc``, ``diff_mpc``, ``diff_cem_mpc``
-(each a small module with a pure core and a ``make_planner(env, config)``); reference rows
-``random`` and ``expert``. The runner is ``dax-bench`` (:mod:`dax_algos.bench`); trained
-policies are saved and loaded with :mod:`dax_algos.trained`. See README.md.
+The methods by family: reinforcement learning (:mod:`dax_algos.rl`: PPO, APG, SHAC),
+imitation learning (:mod:`dax_algos.il`: Transporter, ILD), planning
+(:mod:`dax_algos.planning`: CEM-MPC, diff-MPC, diff-CEM-MPC, and the random and expert
+reference rows). :mod:`dax_algos.registry` names them with their budgets; the benchmark
+runner ``dax-bench`` and what it writes (results, page, episodes, learning curves, policy
+files, the Ray backend) are :mod:`dax_algos.bench`, which imports the methods and never the
+other way. See README.md.
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -16,26 +17,16 @@ try:
 except PackageNotFoundError:  # imported from a source tree that was never installed
     __version__ = "0+unknown"
 
-from . import (  # noqa: E402 - trained.py reads __version__
-    apg,
-    cem_mpc,
-    common,
-    diff_cem_mpc,
-    diff_mpc,
-    ppo,
-    reference,
-    registry,
-    rl,
-    shac,
-    trained,
-)
-from .apg import APGConfig  # noqa: E402
-from .cem_mpc import CEMConfig  # noqa: E402
-from .diff_cem_mpc import DiffCEMConfig  # noqa: E402
-from .diff_mpc import DiffMPCConfig  # noqa: E402
-from .ppo import PPOConfig  # noqa: E402
-from .shac import SHACConfig  # noqa: E402
+from . import common, il, learner, planning, registry, rl  # noqa: E402
+from .il.ild import ILDConfig  # noqa: E402
+from .il.transporter import TransporterConfig  # noqa: E402
+from .planning.cem_mpc import CEMConfig  # noqa: E402
+from .planning.diff_cem_mpc import DiffCEMConfig  # noqa: E402
+from .planning.diff_mpc import DiffMPCConfig  # noqa: E402
+from .rl.apg import APGConfig  # noqa: E402
+from .rl.ppo import PPOConfig  # noqa: E402
+from .rl.shac import SHACConfig  # noqa: E402
 
-__all__ = ["APGConfig", "CEMConfig", "DiffCEMConfig", "DiffMPCConfig", "PPOConfig",
-           "SHACConfig", "__version__", "apg", "cem_mpc", "common", "diff_cem_mpc",
-           "diff_mpc", "ppo", "reference", "registry", "rl", "shac", "trained"]
+__all__ = ["APGConfig", "CEMConfig", "DiffCEMConfig", "DiffMPCConfig", "ILDConfig",
+           "PPOConfig", "SHACConfig", "TransporterConfig", "__version__", "common", "il",
+           "learner", "planning", "registry", "rl"]

@@ -8,7 +8,7 @@ pure, jittable, vmappable function:
 * :meth:`Network.apply` merges the definition with a state and calls the module; gradients
   (``jax.grad``) and optax updates act on the state like on any pytree;
 * :func:`to_tree` / :meth:`Network.from_tree` convert a state to a plain nested dict with
-  string keys (what :mod:`dax_algos.policy_io` stores) and back.
+  string keys (what :mod:`dax_algos.bench.policy_io` stores) and back.
 
 Modules: :class:`MLP` (hidden layers with an activation, a linear output), and
 :class:`GaussianPolicy` (an MLP for the mean of a diagonal Gaussian over normalised

@@ -20,27 +20,18 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
-from . import (
-    apg,
-    cem_mpc,
-    common,
-    diff_cem_mpc,
-    diff_mpc,
-    ild,
-    ppo,
-    reference,
-    rl,
-    shac,
-    transporter,
-)
-from .apg import APGConfig
-from .cem_mpc import CEMConfig
-from .diff_cem_mpc import DiffCEMConfig
-from .diff_mpc import DiffMPCConfig
-from .ild import ILDConfig
-from .ppo import PPOConfig
-from .shac import SHACConfig
-from .transporter import TransporterConfig
+from . import common, learner
+from .il import ild, transporter
+from .il.ild import ILDConfig
+from .il.transporter import TransporterConfig
+from .planning import cem_mpc, diff_cem_mpc, diff_mpc, reference
+from .planning.cem_mpc import CEMConfig
+from .planning.diff_cem_mpc import DiffCEMConfig
+from .planning.diff_mpc import DiffMPCConfig
+from .rl import apg, ppo, shac
+from .rl.apg import APGConfig
+from .rl.ppo import PPOConfig
+from .rl.shac import SHACConfig
 
 BUDGETS = ("quick", "full")
 #: Tasks simulated with MLS-MPM (70-100 env steps of 10-25 ms, or 6 pushes of 0.13 s, on 2
@@ -58,12 +49,12 @@ class Runnable:
     backprop_steps: int
     uses_gradients: bool
     nan_grads_zeroed: bool = False
-    #: a learning method: ``episode`` returns :class:`dax_algos.rl.LearnOutput` (the
+    #: a learning method: ``episode`` returns :class:`dax_algos.learner.LearnOutput` (the
     #: evaluation, the learning curve, the trained policy)
     learns: bool = False
     #: training environment steps of one run (the learning curve's end), for learners
     train_env_steps: int = 0
-    #: the demonstrations an imitation method learns from (a :class:`dax_algos.demos.
+    #: the demonstrations an imitation method learns from (a :class:`dax_algos.il.demos.
     #: DemoSpec`): the runner locates the file and passes ``load(env, path)`` to
     #: ``episode`` as a third argument, ``episode(key, params, data)``
     demos: Any = None
@@ -127,7 +118,7 @@ def planner_method(name, kind, config_cls, make_planner, budgets, uses_gradients
 
 def learner_method(name, kind, config_cls, module, budgets, uses_gradients):
     """A :class:`Method` from a learning module with ``make_train(env, config) ->
-    train(key, params[, data])`` and ``make_act(env, config)`` (see :mod:`dax_algos.rl`),
+    train(key, params[, data])`` and ``make_act(env, config)`` (see :mod:`dax_algos.learner`),
     and optionally ``make_evaluate(env, config)`` (its own evaluation rollouts, e.g. on
     pictures), ``demo_spec(config)`` (the demonstrations its ``train`` takes as ``data``)
     and ``train_env_steps(env, config)``. One run trains from the seed's key and evaluates
@@ -139,7 +130,7 @@ def learner_method(name, kind, config_cls, module, budgets, uses_gradients):
         act = module.make_act(env, config)
         evaluate = (module.make_evaluate(env, config) if hasattr(module, "make_evaluate")
                     else None)
-        episode = rl.learner_episode(module.make_train, act, env, config, config.n_eval,
+        episode = learner.learner_episode(module.make_train, act, env, config, config.n_eval,
                                      evaluate)
         train_steps = _train_env_steps(module, env, config)
         demos = module.demo_spec(config) if hasattr(module, "demo_spec") else None

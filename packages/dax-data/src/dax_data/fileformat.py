@@ -83,7 +83,7 @@ EPISODE_DATASETS = {
     "end_effector": ("float32", ("T+1", 3)),
 }
 #: Optional per-episode image datasets (the observation modes of
-#: :class:`dax_tasks.wrappers.ObservationMode` a file holds; ``S`` the image size): one
+#: :class:`dax_tasks.core.wrappers.ObservationMode` a file holds; ``S`` the image size): one
 #: picture per observation, the reset one first, rendered by the camera in the ``images``
 #: attribute.
 IMAGE_DATASETS = {
@@ -216,7 +216,7 @@ def params_to_json(params) -> dict:
 def images_meta(modes=(), size: int | None = None, camera=None) -> dict:
     """The ``images`` attribute: the image modes stored (of :data:`IMAGE_DATASETS`), their
     size in pixels, and the camera that rendered them (``window`` ``(x0, x1, y0, y1, z0)``
-    [m] and the points' splat ``radius`` [m], a :class:`dax_tasks.render.Camera`)."""
+    [m] and the points' splat ``radius`` [m], a :class:`dax_tasks.viz.Camera`)."""
     modes = [m for m in IMAGE_DATASETS if m in modes]
     if not modes:
         return {"modes": []}

@@ -1,10 +1,10 @@
 """Goal sets: each task's goal particle set written in dax-tasks' goal-file format.
 
 ``write_goals(["fold_cloth1"], out_dir)`` computes each goal with the task's own canonical
-motion (:func:`dax_tasks.goals.compute_goal`: the env's ``canonical_goal()``, the code the
+motion (:func:`dax_tasks.core.goals.compute_goal`: the env's ``canonical_goal()``, the code the
 task itself falls back to, not a second copy) and writes it with
-:func:`dax_tasks.goals.save_goal` (atomic) under the name
-:func:`dax_tasks.goals.goal_file` gives, so a task reads it with
+:func:`dax_tasks.core.goals.save_goal` (atomic) under the name
+:func:`dax_tasks.core.goals.goal_file` gives, so a task reads it with
 ``dax_tasks.make(name, goal_path=file)``, or from the cache when ``out_dir`` is
 ``$DAX_CACHE_DIR/goals``.
 """
@@ -35,8 +35,7 @@ def write_goal(name: str, out_dir, spec=None) -> dict:
     """Compute and write the goal of task ``name`` (default spec unless ``spec``) into
     ``out_dir``; returns ``{"task", "path", "points", "seconds"}``."""
     import dax_tasks
-    from dax_tasks import goals
-
+    from dax_tasks.core import goals
     spec = dax_tasks.get_spec(name) if spec is None else spec
     env = dax_tasks.env_class(name)(spec)
     t0 = time.perf_counter()

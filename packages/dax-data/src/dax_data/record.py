@@ -101,7 +101,7 @@ def parse_overrides(task_name: str, items) -> dict:
             raise ValueError(f"unknown scene override(s) {unknown} for task {task_name!r}; "
                              f"valid: {sorted(fields)}")
         # types first: the scene's own checks compare values (6 < "abc" is a TypeError)
-        from dax_tasks.spec import checked_fields
+        from dax_tasks.core.spec import checked_fields
 
         checked_fields(default, scene, "scene.")
         try:
@@ -151,8 +151,8 @@ class Recorder:
     default params and returns their arrays; reset, step and the policy are jitted once.
 
     ``obs``: the observation modes to record (:func:`check_obs`): the image modes are
-    rendered at ``image_size`` pixels by the env's camera (:class:`dax_tasks.render.Camera`,
-    the one :class:`dax_tasks.wrappers.ObservationMode` uses, so a recorded picture equals
+    rendered at ``image_size`` pixels by the env's camera (:class:`dax_tasks.viz.Camera`,
+    the one :class:`dax_tasks.core.wrappers.ObservationMode` uses, so a recorded picture equals
     the observation a policy sees in that mode)."""
 
     def __init__(self, env, policy: str = "expert", point_stride: int = 1,
@@ -170,7 +170,7 @@ class Recorder:
         self.image_modes = tuple(m for m in self.obs if m in ff.IMAGE_DATASETS)
         self.camera = None
         if self.image_modes:
-            from dax_tasks.render import Camera
+            from dax_tasks.viz import Camera
 
             self.camera = Camera.for_env(env)
         self._probe = jax.jit(self._points_and_images)
@@ -387,7 +387,7 @@ def score(task_name: str, seeds: int = 20, seed: int = 0,
     if not (isinstance(seeds, int) and seeds > 0):
         raise ValueError(f"seeds must be a positive int, got {seeds!r}")
     seed = check_seeds(seed, seeds)
-    from dax_tasks.wrappers import VmapWrapper
+    from dax_tasks.core.wrappers import VmapWrapper
 
     env = make_task(task_name, overrides=overrides)
     spec = env.spec

@@ -4,12 +4,13 @@ The top level holds the MPM solver (:mod:`dax_physics.mpm`) and what both solver
 (colliders, materials, :func:`checkpointed_scan`); the cloth solver is
 :mod:`dax_physics.cloth`. Both use the same verbs: ``step`` (one substep), ``rollout``
 (many, one checkpointed scan), ``check_state`` (raise if a state went bad), ``grasp`` and
-``release``. Benchmarks and the demo are in :mod:`dax_physics.tools`.
+``release``. :mod:`dax_physics.precision` holds the full-precision and
+deterministic-GPU settings.
 """
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import cloth, colliders, materials, mpm, sampling
+from . import cloth, colliders, materials, mpm, precision, sampling
 from ._pytree import pytree_dataclass, static_field
 from .colliders import ColliderSpec, ColliderState
 from .materials import Material, MaterialParams, dough, rope, tofu, water
@@ -38,6 +39,6 @@ __all__ = [
     "ColliderSpec", "ColliderState", "MPMConfig", "MPMState", "Material", "MaterialParams",
     "check_params", "check_state", "checkpointed_scan", "cloth", "colliders", "dough",
     "grasp", "init_state", "materials", "max_stable_dt", "max_stable_speed", "mpm",
-    "pytree_dataclass", "release", "rollout", "rope", "sampling", "set_collider_velocity",
-    "static_field", "step", "tofu", "water",
+    "precision", "pytree_dataclass", "release", "rollout", "rope", "sampling",
+    "set_collider_velocity", "static_field", "step", "tofu", "water",
 ]

@@ -26,7 +26,7 @@ planes ``wall_cells * dx`` and ``(domain - wall_cells) * dx`` of each axis, and 
 nodes on or beyond a surface (global index ``<= wall_cells`` or ``>= domain -
 wall_cells``) are constrained: ``"slip"`` removes the velocity component into the wall,
 ``"sticky"`` zeroes it, ``"none"`` disables them. Material comes to rest *on* the surface
-(checked by the validation suite, :mod:`dax_physics.validate`), and :func:`init_state`
+(checked by the validation suite, :mod:`benchmarks.validate`), and :func:`init_state`
 accepts particles between the surfaces. (Before 0.3.0 the nodes with index ``<
 wall_cells`` were constrained, as in the Taichi and Warp reference scenes: material then
 rested about a cell below the documented surface, an O(dx) error in every length measured

@@ -10,7 +10,7 @@ registered when gymnasium is imported, whether before or after ``import dax_task
 
 ``gymnasium.make("dax/FoldCloth1-v0", **kwargs)`` and ``gymnasium.make_vec(id, num_envs=B,
 vectorization_mode="vector_entry_point", **kwargs)``: ``seed`` (the first reset's seed when
-``reset`` gets none), ``obs_mode`` and ``image_size`` (:class:`dax_tasks.wrappers.
+``reset`` gets none), ``obs_mode`` and ``image_size`` (:class:`dax_tasks.core.wrappers.
 ObservationMode`: ``state``, ``particles``, ``height``, ``rgb``, ``rgbd``) and every other
 ``kwarg`` but ``render_mode`` go to :func:`dax_tasks.make` (``goal_path``, spec overrides,
 ``lam``, ``aux_weight``).
@@ -24,7 +24,7 @@ without a seed uses the ``seed`` given to ``gymnasium.make`` (default 0), so it 
 deterministic too (later seedless resets continue the environment's random stream).
 
 Actions. A wrong shape or a NaN/inf raises ``ValueError`` naming the problem
-(:func:`dax_tasks.checks.check_action`). Actions outside the bounds are *clipped* to them
+(:func:`dax_tasks.core.checks.check_action`). Actions outside the bounds are *clipped* to them
 (``info["clipped"]`` says when), as the pure env does.
 
 Why not Gymnasium's ``FunctionalJaxEnv``/``FunctionalJaxVectorEnv``: they call the
@@ -43,10 +43,10 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 
-from . import render as _render
-from .checks import check_action
-from .registry import TASKS, make
-from .wrappers import VmapWrapper
+from . import viz as _viz
+from .core.checks import check_action
+from .core.registry import TASKS, make
+from .core.wrappers import VmapWrapper
 
 #: Gymnasium id of each task.
 GYM_IDS = {
@@ -113,8 +113,8 @@ class _Adapter:
 
     def _frame(self):
         if self._camera is None:
-            self._camera = _render.Camera.for_env(self.env)
-        return _render.render(self.env, self._state, RENDER_RES, self._camera)
+            self._camera = _viz.Camera.for_env(self.env)
+        return _viz.render(self.env, self._state, RENDER_RES, self._camera)
 
     def _key(self, seed):
         if seed is None and self._np_random is None:
@@ -160,7 +160,7 @@ class DaxEnv(_Adapter, gymnasium.Env):
 
 class DaxVectorEnv(_Adapter, gymnasium.vector.VectorEnv):
     """``num_envs`` environments of one task stepped together (one ``vmap``-ed ``jit`` call
-    per step, :class:`dax_tasks.wrappers.VmapWrapper`). All environments share the horizon,
+    per step, :class:`dax_tasks.core.wrappers.VmapWrapper`). All environments share the horizon,
     so they end together; the step after the end resets them all
     (``AutoresetMode.NEXT_STEP``: that step's actions are ignored and its rewards are 0)."""
 

@@ -5,24 +5,11 @@
   the shared SDF colliders, vertex-vertex self-collision via a static-shape spatial hash,
   strain limiting, grippers and the pick-and-place macro (:mod:`.grasp`), checkpointed
   rollouts.
-* A fast stencil path for regular grid cloth (:mod:`.grid`), used by the cloth-drop
-  benchmark.
 
 See ``README_cloth.md`` for the parameters, their units and the stable time step.
 """
 
 from .grasp import PickPlace, grasp, move_gripper, nearest_vertex_point, pick_and_place, release
-from .grid import (
-    GridCloth,
-    GridClothConfig,
-    GridState,
-    cloth_drop_scene,
-    grid_forces,
-    grid_rest_lengths,
-    grid_rollout,
-    grid_step,
-    stable_dt,
-)
 from .mesh import (
     MeshError,
     load_mesh,
@@ -60,14 +47,11 @@ from .sim import (
 )
 
 __all__ = [
-    "ALL_PAIRS_MAX", "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "GridCloth",
-    "GridClothConfig", "GridState",
-    "MeshError", "PickPlace", "check_stable", "check_state", "cloth_drop_scene", "energy",
-    "grasp", "grid_forces", "grid_rest_lengths", "grid_rollout", "grid_step", "load_mesh",
-    "make_cloth", "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper",
-    "nearest_vertex_point", "pick_and_place", "polygon_mesh", "release", "rollout",
-    "save_mesh", "scale_moduli", "self_collision_candidates", "self_collision_forces",
-    "self_collision_overflow", "self_search_mode",
-    "spring_forces", "spring_layout", "square_cloth", "square_mesh", "stable_dt", "step",
-    "tshirt_cloth", "tshirt_mesh", "tshirt_outline", "validate_mesh",
+    "ALL_PAIRS_MAX", "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "MeshError",
+    "PickPlace", "check_stable", "check_state", "energy", "grasp", "load_mesh", "make_cloth",
+    "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper", "nearest_vertex_point",
+    "pick_and_place", "polygon_mesh", "release", "rollout", "save_mesh", "scale_moduli",
+    "self_collision_candidates", "self_collision_forces", "self_collision_overflow",
+    "self_search_mode", "spring_forces", "spring_layout", "square_cloth", "square_mesh",
+    "step", "tshirt_cloth", "tshirt_mesh", "tshirt_outline", "validate_mesh",
 ]

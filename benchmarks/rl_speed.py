@@ -1,0 +1,100 @@
+"""Benchmark of the reinforcement-learning methods' training speed and memory (JSON).
+
+Per task and method, with the method's full-budget config (``--set`` overrides fields):
+training throughput in environment steps per second, the time of one training update,
+and memory: XLA's own accounting of the compiled one-update program (``xla_temp_mb``,
+its scratch memory, the part that grows with the backpropagation horizon) and the
+process's peak resident memory so far. The time per update is measured as ``(t(3
+updates) - t(1 update)) / 2`` of the whole jitted ``train`` (so initialisation, reset and
+evaluation cancel), each the median of ``--reps`` calls after compilation.
+
+    python -m benchmarks.rl_speed --json --tasks fold_cloth1,whip_rope --methods ppo
+    python -m benchmarks.rl_speed --json --tasks whip_rope --methods apg,shac
+
+Speed is measured here, never asserted in tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+
+import jax
+
+import dax_tasks
+from benchmarks._timing import emit, median_time, peak_rss_mb, timed_compile
+from dax_algos import registry
+
+
+def _steps_per_update(method: str, config, env) -> int:
+    if method == "ppo":
+        return config.num_envs * config.unroll_length
+    if method == "ild":  # one episode per env and update, in windows
+        return config.num_envs * env.horizon
+    return config.num_envs * config.window_for(env)
+
+
+def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None,
+            task_overrides: dict | None = None, data=()) -> dict:
+    """One record (see the module docstring); ``data``: what the method's ``train`` takes
+    after ``(key, params)`` (ILD's demonstration)."""
+    env = dax_tasks.make(task, **(task_overrides or {}))
+    m = registry.get(method)
+    base = m.config("full", task, **(overrides or {}))
+    per = _steps_per_update(method, base, env)
+    params = env.default_params
+    record = {"task": task, "method": method, "steps_per_update": per}
+    times = {}
+    for updates in (1, 3):
+        cfg = m.config("full", task, **{**(overrides or {}), "total_env_steps": per * updates})
+        train = m.learner.make_train(env, cfg)
+        fn = jax.jit(train)
+        compiled, compile_s = timed_compile(fn, jax.random.PRNGKey(0), params, *data)
+        times[updates], _ = median_time(
+            lambda c=compiled: jax.block_until_ready(c(jax.random.PRNGKey(0), params, *data)),
+            reps)
+        record[f"compile_s_{updates}"] = round(compile_s, 3)
+        if updates == 1:
+            mem = compiled.memory_analysis()
+            if mem is not None:
+                record["xla_temp_mb"] = round(mem.temp_size_in_bytes / 2**20, 1)
+                record["xla_argument_output_mb"] = round(
+                    (mem.argument_size_in_bytes + mem.output_size_in_bytes) / 2**20, 1)
+    per_update = max((times[3] - times[1]) / 2, 1e-9)
+    record.update(update_s=round(per_update, 4), env_steps_per_s=round(per / per_update, 1),
+                  config={k: (list(v) if isinstance(v, tuple) else v)
+                          for k, v in vars(base).items()},
+                  peak_rss_mb=round(peak_rss_mb(), 1), device=str(jax.devices()[0]))
+    return record
+
+
+def parse_sets(items) -> dict:
+    """Config overrides from ``--set FIELD=VALUE`` items (VALUE a Python literal)."""
+    overrides = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        overrides[name] = ast.literal_eval(value)
+    return overrides
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.rl_speed",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--tasks", default="fold_cloth1,whip_rope")
+    p.add_argument("--methods", default="ppo,apg,shac")
+    p.add_argument("--reps", type=int, default=3)
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="config override (Python literal), e.g. --set num_envs=64")
+    p.add_argument("--json", action="store_true", help="one JSON line per measurement")
+    args = p.parse_args(argv)
+    overrides = parse_sets(args.set)
+    for task in args.tasks.split(","):
+        for method in args.methods.split(","):
+            print(f"{task} / {method} ...", file=sys.stderr)
+            emit(measure(task, method, args.reps, overrides), args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

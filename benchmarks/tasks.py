@@ -1,0 +1,210 @@
+"""Benchmark of the tasks: per task and batch size, reset time, forward step time,
+step-plus-gradient time (gradient of the summed reward with respect to the actions) and
+the compile time of each, with the resolution the task runs at. One JSON line per task on
+stdout (``--json``); progress on stderr. Speed is measured here, never asserted in tests.
+
+    python -m benchmarks.tasks --json                         # all tasks, batch 1 and 8
+    python -m benchmarks.tasks --json --tasks fold_cloth1 --batch 1 --reps 5
+    python -m benchmarks.tasks --json --resolution default,reference --batch 1
+    python -m benchmarks.tasks resolution --task fold_cloth1 --out DIR
+
+The ``resolution`` subcommand is the speed-versus-accuracy study of one task
+(:mod:`benchmarks.resolution`): the expert's episode on a ladder of resolutions,
+each compared with a fine reference, one chart and one JSON per task.
+
+``--resolution reference`` builds each task at the original DaXBench benchmark's particle
+or vertex count and substeps per step (``dax_tasks.make(name, resolution="reference")``),
+so its time compares with the original's at equal work; every record carries the
+original's figures (:data:`DAXBENCH`) beside the measured ones.
+
+Times are medians over at least ``--reps`` calls and ``--min-time`` seconds (at most 50
+calls) after the compiled function's first call; compile
+times come from lowering and compiling ahead of time (set ``JAX_COMPILATION_CACHE_DIR``
+unset to see cold compiles). ``per_env_step_s`` = step time / batch size. The actions
+timed are the task's scripted expert's (so the gripper touches the object), else the
+middle of the action box. ``grad_finite`` says whether that gradient was finite
+(``grad_norm`` is null when it was not, so the output stays strict JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from benchmarks._timing import emit, median_time, peak_rss_mb, timed_compile
+from dax_tasks import RESOLUTIONS, TASKS, VmapWrapper, available, make
+
+#: The original DaXBench benchmark, measured on the 2-core CPU class the README's tables
+#: use (jax 0.4.13, batch 1, steady env step; noise +-15-20 %): what it simulates per env
+#: step and how long a step takes [s] (``grad_s``: step plus gradient, where measured).
+#: Cloth: mass-spring; the square cloths are a 16 x 32 mask on an 80 x 80 lattice, 40
+#: sub-actions x 50 substeps. MPM: ``grid`` is the grid resolution, ``active`` the cells
+#: it simulates.
+DAXBENCH = {
+    "fold_cloth1": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                    "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "fold_cloth3": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                    "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "unfold_cloth1": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                      "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "unfold_cloth3": {"model": "mass-spring", "object_points": 512, "substeps": 2000,
+                      "dt": 2e-3, "step_s": 0.070, "grad_s": 0.85},
+    "fold_tshirt": {"model": "mass-spring", "object_points": 3573, "substeps": 2000,
+                    "dt": 5e-4, "step_s": 0.664, "grad_s": 5.06},
+    "push_rope": {"model": "MPM rope", "object_points": 582, "substeps": 3990, "dt": 5e-5,
+                  "grid": 128, "active": [64, 6, 64], "step_s": 19.0},
+    "whip_rope": {"model": "MPM", "object_points": 67, "substeps": 70, "dt": 1e-4,
+                  "grid": 64, "active": [32, 32, 32], "step_s": 0.085},
+    "pour_water": {"model": "MPM liquid", "object_points": 702, "substeps": 23, "dt": 3e-4,
+                   "grid": 80, "active": [26, 20, 26], "step_s": 0.130},
+    "pour_soup": {"model": "MPM", "object_points": 7631, "substeps": 25, "dt": 4e-4,
+                  "grid": 128, "active": [128, 64, 128], "step_s": 6.81},
+}
+
+#: Scene fields reported as the task's resolution when the scene has them.
+RESOLUTION_FIELDS = ("dx", "dt", "domain", "window", "ppc", "n", "size", "spacing", "shape")
+
+
+def resolution(env) -> dict:
+    """What a task models: object points, substeps per env step and the scene's grid."""
+    out = {"object_points": int(env.n_object_points), "substeps": env.spec.substeps,
+           "horizon": env.horizon, "action_kind": env.spec.action_kind,
+           "sim_time_per_step_s": round(env.dt, 6)}
+    scene = env.spec.scene
+    if dataclasses.is_dataclass(scene):
+        for f in RESOLUTION_FIELDS:
+            if hasattr(scene, f):
+                v = getattr(scene, f)
+                out[f"scene_{f}"] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
+                grad: bool = True, clock=time.perf_counter) -> dict:
+    """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
+    argument of every timed function (data, as a learner passes them). ``grad=False``
+    skips the step-plus-gradient (its figures are then null); ``clock`` times the calls
+    (:func:`benchmarks._timing.median_time`)."""
+    if batch is not None:
+        env = VmapWrapper(env, batch_size=batch)
+    params = env.default_params
+    key = jax.random.PRNGKey(0)
+    reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
+    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time, clock=clock)
+    _, state = reset(key, params)
+    if env.has_expert:
+        action = jax.jit(env.expert_action)(state, params)
+    else:
+        mid = 0.5 * (np.asarray(env.spec.action_low) + np.asarray(env.spec.action_high))
+        shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
+        action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
+    step, c_step = timed_compile(jax.jit(env.step), state, action, params)
+    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time, clock=clock)
+    b = 1 if batch is None else batch
+    out = {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
+           "step_grad_s": None, "compile_reset_s": c_reset, "compile_step_s": c_step,
+           "compile_grad_s": None, "grad_finite": None, "grad_norm": None}
+    if not grad:
+        return out
+
+    def total_reward(a, s, p):
+        return jnp.sum(env.step(s, a, p)[2])
+
+    grad = jax.jit(jax.value_and_grad(total_reward))
+    grad_c, c_grad = timed_compile(grad, action, state, params)
+    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time, clock=clock)
+    g = np.asarray(grad_c(action, state, params)[1])
+    finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
+    out.update(step_grad_s=t_grad, compile_grad_s=c_grad, grad_finite=finite,
+               grad_norm=float(np.linalg.norm(g)) if finite else None)
+    return out
+
+
+def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
+               min_time: float = 0.0, resolution_name: str = "default",
+               grad: bool = True, clock=time.perf_counter) -> dict:
+    env = make(name, resolution=resolution_name, **(overrides or {}))
+    record = {"bench": "task", "task": name, "resolution": resolution_name,
+              **resolution(env), "daxbench": DAXBENCH.get(name), "batches": []}
+    for b in batches:
+        print(f"[benchmarks.tasks] {name} ({resolution_name}) batch {b}",
+              file=sys.stderr, flush=True)
+        record["batches"].append(bench_batch(env, None if b == 1 else b, reps, min_time,
+                                             grad, clock))
+    record["clock"] = "process" if clock is time.process_time else "wall"
+    record["peak_rss_mb"] = peak_rss_mb()
+    record["device"] = str(jax.devices()[0])
+    return record
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.tasks", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tasks", default="all",
+                   help="comma-separated task names or 'all' (the implemented ones)")
+    p.add_argument("--batch", default="1,8", help="comma-separated batch sizes")
+    p.add_argument("--reps", type=int, default=3, help="timed calls per measurement (at least)")
+    p.add_argument("--min-time", type=float, default=1.0,
+                   help="time each measurement for at least this many seconds (at most 50 "
+                        "calls); run-to-run noise on 2 shared cores is about 10 %%")
+    p.add_argument("--resolution", default="default",
+                   help="comma-separated resolutions: 'default' (the task's own) and/or "
+                        "'reference' (the original benchmark's points and substeps)")
+    p.add_argument("--no-grad", action="store_true",
+                   help="skip the step-plus-gradient timing (null in the output)")
+    p.add_argument("--clock", choices=("wall", "process"), default="wall",
+                   help="wall time (default) or the process's CPU time (steadier on a shared "
+                        "machine; pin the process to one core with taskset to compare)")
+    p.add_argument("--json", action="store_true", help="one JSON line per task")
+    return p
+
+
+def parse_tasks(text: str) -> list:
+    if text == "all":
+        return list(available())
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [t for t in names if t not in TASKS]
+    if bad:
+        raise ValueError(f"unknown task(s) {bad}; valid names: {', '.join(TASKS)}")
+    return names
+
+
+def main(argv=None, overrides: dict | None = None) -> list:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["resolution"]:  # the speed-versus-accuracy study of one task
+        from benchmarks.resolution import main as resolution_main
+
+        return resolution_main(argv[1:])
+    args = build_parser().parse_args(argv)
+    try:
+        names = parse_tasks(args.tasks)
+        batches = [int(b) for b in args.batch.split(",")]
+        resolutions = [r.strip() for r in args.resolution.split(",") if r.strip()]
+        bad = [r for r in resolutions if r not in RESOLUTIONS]
+        if bad or not resolutions:
+            raise ValueError(f"unknown resolution(s) {bad}; valid: {', '.join(RESOLUTIONS)}")
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    if any(b < 1 for b in batches) or args.reps < 1:
+        print("error: batch sizes and --reps must be >= 1", file=sys.stderr)
+        raise SystemExit(2)
+    clock = time.process_time if args.clock == "process" else time.perf_counter
+    records = []
+    for res in resolutions:
+        for name in names:
+            rec = bench_task(name, batches, args.reps, overrides, args.min_time, res,
+                             not args.no_grad, clock)
+            emit(rec, args.json)
+            records.append(rec)
+    return records
+
+
+if __name__ == "__main__":
+    main()

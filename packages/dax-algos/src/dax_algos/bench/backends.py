@@ -1,0 +1,98 @@
+"""Running the benchmark grid on a Ray cluster (``dax-bench run --backend ray``).
+
+Every (task, method, seed) still to run is one Ray task, :func:`dax_algos.bench.runner.run_one`,
+called with plain data (names, seed, budget, overrides): the worker builds the task and the
+method itself, compiles and runs that one seed, writes nothing and returns a
+:class:`dax_algos.bench.runner.SeedResult` (the row, the episode's actions, the learning curve, the
+policy's arrays). The driver, which holds the output directory's lock, records each result
+as its task finishes (:func:`dax_algos.bench.runner.record`: one atomic append per row), so a
+killed driver loses no finished row and the same command resumes. The pictures of the
+results page are drawn by the driver at the end, from the recorded episodes.
+
+Ray is an optional dependency (``pip install 'dax-algos[ray]'``), imported only here and
+only when this backend is asked for. Each worker needs dax-algos and its siblings installed
+(the same versions as the driver) and imports them; a method registered only in the
+driver's process (``registry.register``) is unknown there and its rows fail.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Mapping
+
+#: environment variables of the driver that the workers get too (when set): JAX's
+#: persistent compilation cache, so that workers reuse compiled programs
+WORKER_ENV = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
+
+INSTALL_HINT = "pip install 'dax-algos[ray]'"
+
+
+def require_ray():
+    """The ``ray`` module; ``ValueError`` saying how to install it if it is missing."""
+    try:
+        import ray
+    except ImportError as err:
+        raise ValueError(f"--backend ray needs Ray, which is not installed ({err}); "
+                         f"install it with: {INSTALL_HINT}") from None
+    return ray
+
+
+def worker_env() -> dict:
+    """The ``env_vars`` of the workers' runtime environment (:data:`WORKER_ENV`)."""
+    return {k: os.environ[k] for k in WORKER_ENV if os.environ.get(k)}
+
+
+def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mapping,
+            cache_goal: bool, demo_dir, finished: Callable, address: str | None = None,
+            num_cpus: float = 1) -> None:
+    """Run ``todo`` (``(task, method, seed)`` triples) as Ray tasks and call
+    ``finished(result)`` in this process for each as it finishes. Uses Ray as it is if it is
+    initialised already, else ``ray.init(address=address)`` (``None``: ``RAY_ADDRESS`` or
+    a new local instance), shut down again at the end. A run whose worker raised is a
+    ``failed`` row; one lost to the cluster (a worker or node died) is not recorded, so
+    that running the same command again retries it. Interrupted, it cancels the tasks
+    still pending."""
+    if not todo:
+        return
+    ray = require_ray()
+    from .runner import SeedResult, _error_text, _row, run_one
+
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=address)
+    env_vars = worker_env()
+    remote = ray.remote(run_one).options(
+        num_cpus=num_cpus, **({"runtime_env": {"env_vars": env_vars}} if env_vars else {}))
+    pending = {}
+    try:
+        for t, m, s in todo:
+            ref = remote.remote(t, m, s, budget, dict(task_overrides.get(t, {})),
+                                dict(method_overrides.get(m, {})), cache_goal,
+                                None if demo_dir is None else str(demo_dir))
+            pending[ref] = (t, m, s)
+        lost = []
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                t, m, s = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except ray.exceptions.RayTaskError as err:  # raised in run_one itself
+                    cause = getattr(err, "cause", None) or err
+                    result = SeedResult(_row(t, m, s, budget, status="failed",
+                                             error=_error_text(cause)))
+                except ray.exceptions.RayError as err:  # the cluster lost it: not recorded
+                    lost.append((t, m, s))
+                    print(f"dax-bench: {t} / {m} / seed {s} was lost "
+                          f"({_error_text(err)}); run again to retry it", file=sys.stderr)
+                    continue
+                finished(result)
+        if lost:
+            print(f"dax-bench: {len(lost)} runs lost by the Ray cluster are not in "
+                  f"results.csv; the same command runs them again", file=sys.stderr)
+    finally:
+        for ref in pending:  # interrupted: the rest would run for nobody
+            ray.cancel(ref, force=True)
+        if started:
+            ray.shutdown()

@@ -1,0 +1,221 @@
+"""ILD, imitation learning as state matching through differentiable physics (Chen et al.
+2023, "Imitation Learning as State Matching via Differentiable Physics"), from one expert
+demonstration.
+
+The policy (an MLP on the task's ``state`` observation and ``t / horizon``, as the RL
+methods' :mod:`dax_algos.learner`) is rolled through the differentiable step from ``num_envs``
+starts and its parameters descend the distance between the states it visits and the
+demonstration's states at the same steps, summed over the episode: the action of step
+``t`` gets gradient from the state after it and from every later one (through the
+simulator). A state is the object's points (particles, cloth vertices; they correspond by
+index across starts) and the end effector, and the distance at step ``t`` is
+
+* ``weighting="per_part"`` (default): ``object_weight * mean_i |x_i - x*_i|^2 +
+  effector_weight * |e - e*|^2``: each part averaged over its own points, then weighted;
+* ``weighting="flat"``: ``(sum_i |x_i - x*_i|^2 + |e - e*|^2) / (N + 1)``: the whole state
+  as one vector, every point alike, as a plain L2 state distance does. With N object
+  points the end effector's term carries ``1 / (N + 1)`` of the weight: on a pour task
+  (476 particles) the gripper's signal is drowned, the open problem the ILD paper names.
+
+Starts: ``starts="random"`` (default) draws each training episode's start from the task's
+own distribution (so the policy learns to follow the demonstration from where an
+evaluation episode starts); ``starts="demo"`` restarts every episode from the
+demonstration's own start (``reset(PRNGKey(seed))``, the file's seed), the setting in which
+reproducing the demonstration exactly is possible. ``window`` truncates backpropagation as
+in APG (``None``: the whole episode); each update is one episode per env, in
+``ceil(H / window)`` gradient steps, the state carried between them ``stop_gradient``-ed.
+Non-finite gradients are counted and their step skipped, as in the RL methods.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from dax_tasks.core.wrappers import VmapWrapper
+
+from .. import common, learner, nets
+from . import demos
+
+WEIGHTINGS = ("per_part", "flat")
+
+
+@dataclasses.dataclass(frozen=True)
+class ILDConfig:
+    """total_env_steps: training budget (``num_envs * horizon`` per update); window:
+    backpropagation horizon in env steps (``None``: the episode); weighting,
+    object_weight, effector_weight: the state distance (see the module docstring);
+    starts: ``random`` or ``demo``."""
+
+    total_env_steps: int = 2_000
+    num_envs: int = 4
+    window: int | None = None
+    learning_rate: float = 1e-3
+    max_grad_norm: float | None = 0.3
+    zero_nans: bool = False
+    policy_hidden: tuple = (256, 256)
+    activation: str = "swish"
+    weighting: str = "per_part"
+    object_weight: float = 1.0
+    effector_weight: float = 1.0
+    starts: str = "random"
+    normalize_obs: bool = True
+    remat: bool = False
+    n_eval: int = 20
+
+    def __post_init__(self):
+        learner.check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
+                        positive=("learning_rate",),
+                        non_negative=("object_weight", "effector_weight"))
+        if self.window is not None:
+            common.check_positive_int("window", self.window)
+        if self.max_grad_norm is not None:
+            common.check_positive("max_grad_norm", self.max_grad_norm)
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"unknown weighting {self.weighting!r}; valid: "
+                             f"{', '.join(WEIGHTINGS)}")
+        if self.starts not in ("random", "demo"):
+            raise ValueError(f"starts must be 'random' or 'demo', got {self.starts!r}")
+
+    def window_for(self, env) -> int:
+        return env.horizon if self.window is None else min(self.window, env.horizon)
+
+    def updates_for(self, env) -> int:
+        return max(1, self.total_env_steps // (self.num_envs * env.horizon))
+
+
+def train_env_steps(env, config: ILDConfig) -> int:
+    """Environment steps simulated in training (the windows of the last one may run past
+    the horizon; those steps count too)."""
+    w = config.window_for(env)
+    return config.num_envs * w * math.ceil(env.horizon / w) * config.updates_for(env)
+
+
+class Demonstration(NamedTuple):
+    """One demonstration's states: ``points`` (H + 1, N, 3) and ``effector`` (H + 1, 3)
+    [m] at steps 0..H, and its start ``key`` (the reset key of its seed)."""
+
+    points: jnp.ndarray
+    effector: jnp.ndarray
+    key: jnp.ndarray
+
+
+def demonstration_from_episode(env, episode) -> Demonstration:
+    """The :class:`Demonstration` of a dax-data episode recorded with point stride 1."""
+    steps = np.asarray(episode.point_steps)
+    if episode.length != env.horizon or not np.array_equal(steps, np.arange(env.horizon + 1)):
+        raise ValueError(f"ILD needs a whole episode ({env.horizon} steps) with the object's "
+                         f"points at every step (point stride 1); got {episode.length} steps "
+                         f"with points at {steps.tolist()[:6]}...")
+    return Demonstration(jnp.asarray(episode.points, jnp.float32),
+                         jnp.asarray(episode.end_effector, jnp.float32),
+                         jax.random.PRNGKey(int(episode.seed)))
+
+
+def load_data(env, path) -> Demonstration:
+    """The first episode of the demonstration file ``path``, checked against ``env``."""
+    return demonstration_from_episode(env, demos.load_episodes(path, env, 1)[0])
+
+
+def demo_spec(config: ILDConfig) -> demos.DemoSpec:
+    return demos.DemoSpec("ild", load_data)
+
+
+def state_distance(points, effector, target_points, target_effector, config: ILDConfig):
+    """The state distance of one step [m^2] (see the module docstring)."""
+    d_obj = jnp.sum((points - target_points) ** 2, axis=-1)
+    d_ee = jnp.sum((effector - target_effector) ** 2, axis=-1)
+    if config.weighting == "flat":
+        return (jnp.sum(d_obj, axis=-1) + d_ee) / (points.shape[-2] + 1)
+    return config.object_weight * jnp.mean(d_obj, axis=-1) + config.effector_weight * d_ee
+
+
+def network(env, config: ILDConfig):
+    return nets.policy_network(learner.feature_dim(env), env.spec.action_dim,
+                               config.policy_hidden, config.activation)
+
+
+def make_act(env, config: ILDConfig):
+    return learner.make_act(network(env, config), config.normalize_obs)
+
+
+def make_train(env, config: ILDConfig):
+    """``train(key, params, demo) -> (learner.Policy, learner.UpdateMetrics)``; ``demo`` a
+    :class:`Demonstration`."""
+    horizon, window = env.horizon, config.window_for(env)
+    n_windows = math.ceil(horizon / window)
+    venv = VmapWrapper(env, config.num_envs)
+    pnet = network(env, config)
+    opt = learner.make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
+    points_of = jax.vmap(env.object_points)
+    effector_of = jax.vmap(env.end_effector)
+
+    def window_loss(policy, norm, obs, state, params, demo):
+        def step(carry, _):
+            obs, state = carry
+            t = state.t
+            feats = learner.batch_features(obs, t, horizon)
+            mean, _ = pnet.apply(policy, norm(feats, config.normalize_obs))
+            obs, state, _, _, info = venv.step(state, common.to_action(env, jnp.tanh(mean)),
+                                               params)
+            nxt = jnp.minimum(t + 1, horizon)
+            d = state_distance(points_of(state.physics), effector_of(state.physics),
+                               demo.points[nxt], demo.effector[nxt], config)
+            live = (t < horizon).astype(jnp.float32)
+            final_r = jnp.where(t == horizon - 1, info["r_gt"], 0.0)
+            return (obs, state), (feats, d * live, final_r, (t == horizon - 1))
+
+        if config.remat:
+            step = jax.checkpoint(step)
+        (obs, state), (feats, d, final_r, last) = jax.lax.scan(step, (obs, state), None,
+                                                              length=window)
+        loss = jnp.sum(d) / (config.num_envs * horizon)
+        return loss, (obs, state, feats, jnp.sum(final_r), jnp.sum(last))
+
+    grad_fn = jax.value_and_grad(window_loss, has_aux=True)
+
+    def train(key, params, demo: Demonstration):
+        k_pi, k_run = jax.random.split(key)
+        policy = pnet.init(k_pi)
+        opt_state = opt.init(policy)
+        norm = learner.ObsNorm.create(learner.feature_dim(env))
+
+        def update(carry, k):
+            policy, opt_state, norm, steps = carry
+            keys = jax.random.split(k, config.num_envs)
+            if config.starts == "demo":
+                keys = jnp.broadcast_to(demo.key, keys.shape)
+            obs, state = venv.reset(keys, params)
+
+            def one_window(c, _):
+                policy, opt_state, norm, obs, state = c
+                (loss, (obs, state, feats, r_sum, n_last)), grads = grad_fn(
+                    policy, norm, obs, state, params, demo)
+                policy, opt_state, gnorm, bad = learner.guarded_update(
+                    opt, grads, opt_state, policy, config.zero_nans)
+                norm = norm.update(feats) if config.normalize_obs else norm
+                obs, state = jax.lax.stop_gradient((obs, state))
+                return (policy, opt_state, norm, obs, state), (gnorm, bad, r_sum, n_last,
+                                                               loss)
+
+            (policy, opt_state, norm, _, _), (gnorm, bad, r_sum, n_last, loss) = jax.lax.scan(
+                one_window, (policy, opt_state, norm, obs, state), None, length=n_windows)
+            steps = steps + config.num_envs * window * n_windows
+            metrics = learner.UpdateMetrics(
+                env_steps=steps, score=jnp.sum(r_sum) / jnp.maximum(jnp.sum(n_last), 1),
+                episode_return=jnp.asarray(jnp.nan, jnp.float32), grad_norm=gnorm[-1],
+                nonfinite=jnp.sum(bad.astype(jnp.int32)),
+                grad_steps=jnp.asarray(n_windows, jnp.int32), loss=jnp.sum(loss))
+            return (policy, opt_state, norm, steps), metrics
+
+        carry = (policy, opt_state, norm, jnp.zeros((), jnp.int32))
+        (policy, _, norm, _), metrics = jax.lax.scan(
+            update, carry, jax.random.split(k_run, config.updates_for(env)))
+        return learner.Policy(policy, norm), metrics
+
+    return train

@@ -1,0 +1,2 @@
+"""Planning: CEM-MPC (:mod:`.cem_mpc`), diff-MPC (:mod:`.diff_mpc`), diff-CEM-MPC
+(:mod:`.diff_cem_mpc`), and the random and expert reference rows (:mod:`.reference`)."""

@@ -1,0 +1,48 @@
+"""Reference rows: ``random`` (uniform actions in the box) and ``expert`` (the task's scripted
+expert with privileged state, :meth:`dax_tasks.Env.expert_action`). Both are planners
+with no planning rollouts, so they share the episode driver of the planning methods."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from .. import common
+
+
+@dataclasses.dataclass(frozen=True)
+class RandomConfig:
+    """No options: one uniform action per step."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpertConfig:
+    """No options: the task's scripted expert."""
+
+
+def make_random(env, config: RandomConfig) -> common.Planner:
+    d = env.spec.action_dim
+
+    def init(key):
+        return jnp.zeros((), jnp.float32)
+
+    def plan(pstate, env_state, key, params):
+        z = jax.random.uniform(key, (d,), jnp.float32, -1.0, 1.0)
+        return common.to_action(env, z), pstate, common.no_grad_stats(jnp.nan)
+
+    return common.Planner(init=init, plan=plan)
+
+
+def make_expert(env, config: ExpertConfig) -> common.Planner:
+    if not env.has_expert:
+        raise common.NotApplicable(f"task {env.spec.name!r} has no scripted expert")
+
+    def init(key):
+        return jnp.zeros((), jnp.float32)
+
+    def plan(pstate, env_state, key, params):
+        return env.expert_action(env_state, params), pstate, common.no_grad_stats(jnp.nan)
+
+    return common.Planner(init=init, plan=plan)

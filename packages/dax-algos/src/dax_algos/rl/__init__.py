@@ -1,0 +1,1 @@
+"""Reinforcement learning: PPO (:mod:`.ppo`), APG (:mod:`.apg`) and SHAC (:mod:`.shac`)."""

@@ -1,1 +1,0 @@
-"""Command-line tools of dax-algos that are not the runner (benchmarks, sweeps)."""
