@@ -68,7 +68,7 @@ def build(name):
             return jax.jit(lambda v0: {"grad": jax.grad(loss)(v0)}), (state.v,)
         return jax.jit(lambda s: {"x": mpm.rollout(cfg, cfg.params, s, 500).x}), (state,)
     if name in ("cloth", "cloth_grad"):
-        from dax_physics import cloth as c
+        from benchmarks import cloth_grid as c
 
         cfg, cloth, state = c.cloth_drop_scene(64)
         if name == "cloth_grad":

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dax_physics import _transfer, pytree_dataclass
+from dax_physics import _fusion, pytree_dataclass
 
 #: The six unique neighbour directions (di, dj) and their spring family.
 GRID_DIRECTIONS = ((1, 0, "struct"), (0, 1, "struct"), (1, 1, "shear"), (1, -1, "shear"),
@@ -234,7 +234,7 @@ def _forces_bwd(cfg, res, g):
     out = [component(q, *jax.lax.optimization_barrier((x, v, g, jnp.int32(q)))[:3])
            for q in range(3)]
     dL = out[0][1]  # only computed where a rest length's cotangent is used
-    pairs = _transfer.materialise(tuple(p for p, _ in out))
+    pairs = _fusion.materialise(tuple(p for p, _ in out))
     return (GridCloth(tuple(dL)), jnp.stack([p.real for p in pairs]),
             jnp.stack([p.imag for p in pairs]))
 

@@ -115,7 +115,7 @@ def cmd_mpm_grad(args):
         raise SystemExit(f"--substeps {n} must be a multiple of --checkpoint-segments")
 
     def loss(v0):
-        out = mpm.rollout(cfg, params, state.replace(v=v0), n, seg)
+        out = mpm.rollout(cfg, params, state.replace(v=v0), n, segment=seg)
         return jnp.mean(out.x[:, 2])
 
     rss0 = peak_rss_mb()

@@ -30,9 +30,8 @@ import statistics
 import tempfile
 import time
 
-from grad_over_forward import WORKLOADS, workload
-
 from benchmarks._report import write_report
+from benchmarks.grad_over_forward import WORKLOADS, workload
 
 #: ``  %name = shape opcode(...), ... op_name="..."`` of an instruction in the HLO text
 _INSTRUCTION = re.compile(r'^\s*(?:ROOT )?%(\S+) = (\S+) [\w-]+\(.*?op_name="([^"]*)"', re.M)

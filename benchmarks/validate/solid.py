@@ -217,12 +217,12 @@ def check_bar_wave_speed(level="default"):
 
 def _stress(cfg, params, s):
     """Cauchy stress sigma = tau / J per particle, (N, 3, 3)."""
-    Hm = mpm._mat3(s.H)
-    tau = mpm._kirchhoff_stress(cfg, params, s, Hm, mpm._mat3(s.C))
+    Hm = mpm.algebra.mat3(s.H)
+    tau = mpm.constitutive.kirchhoff_stress(cfg, params, s, Hm, mpm.algebra.mat3(s.C))
     if cfg.kinds == {"plastic"}:
-        J = jnp.sqrt(jnp.maximum(1.0 + mpm._det_minus_one(Hm), 1e-12))
+        J = jnp.sqrt(jnp.maximum(1.0 + mpm.algebra.det_minus_one(Hm), 1e-12))
     else:
-        J = 1.0 + mpm._det_minus_one(Hm)
+        J = 1.0 + mpm.algebra.det_minus_one(Hm)
     return jnp.stack([jnp.stack(row, -1) for row in tau], -2) / J[:, None, None]
 
 

@@ -142,7 +142,7 @@ def check_gradient_task_whip_rope(level="default"):
     = the forward difference to 1e-6 relative; backward 0.0094494; central 0.0097275,
     +2.9 %); at a_z = +-0.05 the full direction agrees to 1e-5 relative. (Before 0.2.0
     the throw began with a 2 cm lift, vz > 0, off the kink.) Along (vx, vy) this row also
-    caught the drive's former hard switch (``dax_physics.mpm._drive_grid``): a reward jump
+    caught the drive's former hard switch (``dax_physics.mpm.substep._drive_grid``): a reward jump
     of 4.9e-6 at 2e-4 m/s from the action, -42 % at h = 1e-4."""
     return _check("whip_rope", "velocity-driven rope", components=(0, 1), action_scale=0.8)
 

@@ -92,7 +92,7 @@ def test_checkpointed_rollout_gives_identical_values_and_gradients():
 
     def loss(v, seg):
         gv = jnp.broadcast_to(v, (300, 1, 3))
-        out = c.rollout(cfg, cl, st, 300, gv, segment=seg)
+        out = c.rollout(cfg, cl, st, 300, segment=seg, gripper_vel=gv)
         return jnp.sum(out.x[:, 2] ** 2) + jnp.sum(out.x[:, 0])
     v0 = jnp.array([0.05, 0.05, 0.1])
     l1, g1 = jax.jit(jax.value_and_grad(lambda v: loss(v, None)))(v0)

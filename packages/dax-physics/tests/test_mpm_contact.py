@@ -11,6 +11,9 @@ import pytest
 
 from dax_physics import colliders, materials, mpm, sampling
 
+# the library's rollout is not jitted: the caller jits it (cfg and the count static)
+_rollout = jax.jit(mpm.rollout, static_argnums=(0, 3))
+
 G = 9.81
 
 
@@ -57,7 +60,7 @@ def test_plastic_block_keeps_a_permanent_deformation_after_a_press():
 
     def run(s, chunks):
         for _ in range(chunks):
-            s = mpm.rollout(cfg, params, s, 20)
+            s = _rollout(cfg, params, s, 20)
         return s
 
     def heights(s):
@@ -166,7 +169,7 @@ def test_grasped_particles_follow_the_collider_and_fall_after_release():
     v_c, w_c = np.array([0.1, 0.0, 0.5]), np.array([0.0, 0.0, 2.0])
     s = mpm.set_collider_velocity(s, 0, v_c, w_c)
     chunk = 50
-    s = mpm.rollout(cfg, cfg.params, mpm.rollout(cfg, cfg.params, s, chunk), chunk)
+    s = _rollout(cfg, cfg.params, _rollout(cfg, cfg.params, s, chunk), chunk)
     mpm.check_state(s)
     t = 2 * chunk * dt
     pos = np.asarray(s.colliders.pos[0], np.float64)
@@ -191,7 +194,7 @@ def test_grasped_particles_follow_the_collider_and_fall_after_release():
     # the gripper moves up and away faster than the block, so it no longer touches it
     s = mpm.set_collider_velocity(s, 0, [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
     before = np.asarray(s.x, np.float64)
-    s = mpm.rollout(cfg, cfg.params, s, chunk)
+    s = _rollout(cfg, cfg.params, s, chunk)
     mpm.check_state(s)
     after = np.asarray(s.x, np.float64)
     assert after[:, 2].min() > floor + dx, "the released block reached the floor: too long"
@@ -300,7 +303,7 @@ def test_water_rests_on_a_two_cell_bowl_bottom_without_sinking_into_it():
     s = mpm.init_state(cfg, x[keep], vol=vol,
                        colliders=colliders.ColliderState.create([[c, c, floor]]))
     z0 = np.asarray(s.x)[:, 2]
-    s = mpm.rollout(cfg, cfg.params, s, 400)  # 0.32 s
+    s = _rollout(cfg, cfg.params, s, 400)  # 0.32 s
     mpm.check_state(s)
     z = np.asarray(s.x)[:, 2]
     assert z.min() > inner_bottom - 0.5 * dx, (

@@ -43,7 +43,7 @@ def scene():
         def loss(v, vc, E, segment=None):
             s = mpm.set_collider_velocity(state.replace(v=v), 0, vc)
             p = params.with_youngs_modulus(0, E, mat.poisson_ratio)
-            out = mpm.rollout(cfg, p, s, N_STEPS, segment)
+            out = mpm.rollout(cfg, p, s, N_STEPS, segment=segment)
             return jnp.mean(out.x * weights) + jnp.mean(out.x[:, 0]), out
 
         def grads(segment):

@@ -10,6 +10,9 @@ import pytest
 
 from dax_physics import materials, mpm, sampling
 
+# the library's rollout is not jitted: the caller jits it (cfg and the count static)
+_rollout = jax.jit(mpm.rollout, static_argnums=(0, 3))
+
 
 def _leaves(state):
     return jax.tree_util.tree_leaves_with_path(jax.tree.map(np.asarray, state))
@@ -47,8 +50,8 @@ def test_active_window_matches_the_full_grid(falling_block):
     s0 = s_win = mpm.init_state(windowed, x, vol=vol)
     origins = [np.asarray(s0.origin)]
     for _ in range(2):  # fall onto the floor, then bounce
-        s_full = mpm.rollout(full, full.params, s_full, WINDOW_STEPS)
-        s_win = mpm.rollout(windowed, windowed.params, s_win, WINDOW_STEPS)
+        s_full = _rollout(full, full.params, s_full, WINDOW_STEPS)
+        s_win = _rollout(windowed, windowed.params, s_win, WINDOW_STEPS)
         origins.append(np.asarray(s_win.origin))
     mpm.check_state(s_full)
     mpm.check_state(s_win)  # the block always fits in the 12^3 window
@@ -72,14 +75,14 @@ def test_particles_leaving_the_window_raise_the_escaped_flag(falling_block):
     left = x[:, 0] < np.median(x[:, 0])
     x[left, 0] -= 6 * full.dx
     x[~left, 0] += 6 * full.dx
-    s = mpm.rollout(windowed, windowed.params, mpm.init_state(windowed, x, vol=vol),
+    s = _rollout(windowed, windowed.params, mpm.init_state(windowed, x, vol=vol),
                     WINDOW_STEPS)
     assert bool(s.escaped), "particles outside the window were not flagged"
     assert bool(s.finite)
     with pytest.raises(RuntimeError, match="left the active window"):
         mpm.check_state(s)
     # the full grid holds the same scene without escaping: the flag is about the window
-    s = mpm.rollout(full, full.params, mpm.init_state(full, x, vol=vol), WINDOW_STEPS)
+    s = _rollout(full, full.params, mpm.init_state(full, x, vol=vol), WINDOW_STEPS)
     assert not bool(s.escaped), "the full-grid run of the same scene was flagged"
 
 
@@ -89,9 +92,9 @@ def test_particles_leaving_the_domain_raise_the_escaped_flag():
                         walls="none", gravity=(0.0, 0.0, 0.0), max_speed=2.0)
     x, vol = sampling.box((3 * dx,) * 3, (5 * dx,) * 3, dx, ppc=1)
     s0 = mpm.init_state(cfg, x, v=[2.0, 0.0, 0.0], vol=vol)
-    s = mpm.rollout(cfg, cfg.params, s0, 10)  # 0.1 m: the stencils still fit
+    s = _rollout(cfg, cfg.params, s0, 10)  # 0.1 m: the stencils still fit
     assert not bool(s.escaped), "flagged before any particle reached the domain edge"
-    s = mpm.rollout(cfg, cfg.params, mpm.rollout(cfg, cfg.params, s, 10), 10)  # 0.2 m more
+    s = _rollout(cfg, cfg.params, _rollout(cfg, cfg.params, s, 10), 10)  # 0.2 m more
     assert bool(s.escaped), f"particles at x <= {np.asarray(s.x)[:, 0].max():.3f} m in a " \
                             f"{8 * dx} m domain were not flagged"
     with pytest.raises(RuntimeError, match="domain"):
@@ -117,7 +120,7 @@ def test_particles_accepted_near_the_domain_edge_do_not_escape():
                 assert "outside the simulation domain" in str(err)
                 continue
             accepted.append((cells, axis))
-            s = mpm.rollout(cfg, cfg.params, s0, 10)
+            s = _rollout(cfg, cfg.params, s0, 10)
             assert not bool(s.escaped), (
                 f"a particle at rest at {cells} cells along axis {axis} was accepted by "
                 f"init_state but flagged as escaped (stencil outside nodes 0..{n - 1})")
@@ -153,7 +156,7 @@ def test_mixture_of_fluid_and_elastic_stays_finite_and_conserves_mass(mixture):
     cfg = mixture[0]
     mat = mixture[2]
     s0 = _mixture_state(mixture, [0.0, 0.0, -1.0])
-    s = mpm.rollout(cfg, cfg.params, s0, MIX_STEPS)
+    s = _rollout(cfg, cfg.params, s0, MIX_STEPS)
     mpm.check_state(s)
     m0 = float(mpm.total_mass(cfg.params, s0))
     m1 = float(mpm.total_mass(cfg.params, s))
@@ -184,9 +187,9 @@ def test_vmap_over_a_batch_equals_a_python_loop(mixture):
     batch = [_mixture_state(mixture, v) for v in ([0.0, 0.0, -1.0], [0.5, 0.0, 0.0],
                                                    [0.0, -0.5, 0.5])]
     stacked = jax.tree.map(lambda *a: jnp.stack(a), *batch)
-    out = jax.vmap(lambda s: mpm.rollout(cfg, cfg.params, s, MIX_STEPS))(stacked)
+    out = jax.vmap(lambda s: _rollout(cfg, cfg.params, s, MIX_STEPS))(stacked)
     for i, s in enumerate(batch):
-        ref = mpm.rollout(cfg, cfg.params, s, MIX_STEPS)
+        ref = _rollout(cfg, cfg.params, s, MIX_STEPS)
         for name in ("x", "v", "C", "F", "J"):
             a = np.asarray(getattr(ref, name))
             b = np.asarray(getattr(out, name))[i]
@@ -209,6 +212,6 @@ def test_same_inputs_give_bitwise_equal_results(mixture):
                                seed=0)
     np.testing.assert_array_equal(again, x[mat == 0], err_msg="seeded sampling differs")
     assert vol2 == vol
-    a = mpm.rollout(cfg, cfg.params, _mixture_state(mixture, [0.0, 0.0, -1.0]), MIX_STEPS)
-    b = mpm.rollout(cfg, cfg.params, _mixture_state(mixture, [0.0, 0.0, -1.0]), MIX_STEPS)
+    a = _rollout(cfg, cfg.params, _mixture_state(mixture, [0.0, 0.0, -1.0]), MIX_STEPS)
+    b = _rollout(cfg, cfg.params, _mixture_state(mixture, [0.0, 0.0, -1.0]), MIX_STEPS)
     _assert_states_equal(a, b, "two identical rollouts")

@@ -15,10 +15,16 @@ rows ``R`` (N, 4, C) stand for the node values
 For fixed weights the two are adjoint (<spread(R), g> = <R, collect(g)>), so each one's
 reverse mode is mostly the other; the weights' cotangent is ``dW_o = sum_c G_oc U_oc`` with
 the gathered block ``G`` and the affine rows on the other side, pushed through the
-product ``W_o`` by hand. Autodiff of the same forward code saved the (N, 27, C) stencil
-values of every substep as residuals and reduced them with slow small-axis reductions
-(XLA:CPU); here a substep keeps only its inputs (``w``, ``R``, the grid) and the reverse
-pass re-gathers the block it needs.
+product ``W_o`` by hand. Autodiff of the same forward code would keep the (N, 27, C)
+stencil values of every substep as residuals and reduce them over small axes (library
+calls on XLA:CPU); here a substep keeps only its inputs (``w``, ``R``, the grid) and the
+reverse pass re-gathers the block it needs.
+
+Shapes: ``base`` (N, 3) int32 block corners in window cells, every block inside the grid
+(the caller clamps and flags); ``w`` (N, 3, 3) dimensionless; the grid (Wx, Wy, Wz, C)
+with fewer than 2^31 entries (int32 flat indices). The transfers are linear in ``R`` and
+the grid and carry whatever units those have (momentum [kg m/s] and mass [kg] in P2G,
+velocity [m/s] in G2P).
 """
 
 from __future__ import annotations
@@ -29,82 +35,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._fusion import materialise
+
 # A particle's block is read and written as nine z-rows of 3 C contiguous floats of the
 # flattened grid (channels last): one flat gather or scatter with (N, 9) starts and a
-# 3 C-wide window. On XLA:CPU that is about 2x faster than a (3, 3, 3, C) window on the 4-D
-# grid, whose index arithmetic runs per element.
+# 3 C-wide window. A (3, 3, 3, C) window on the 4-D grid would run its index arithmetic
+# per element on XLA:CPU.
 _ROW_SCATTER = jax.lax.ScatterDimensionNumbers(
     update_window_dims=(2,), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,))
 _ROW_GATHER = jax.lax.GatherDimensionNumbers(
     offset_dims=(2,), collapsed_slice_dims=(), start_index_map=(0,))
 _IN_BOUNDS = jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
-#: Every float32 matmul in the solvers asks for full precision: on GPUs with TF32 (Ampere
-#: and later) JAX's default lets a float32 dot round its inputs to a 10-bit mantissa. On CPU
-#: it changes nothing.
-HIGHEST = jax.lax.Precision.HIGHEST
-
-
-def mm(a, b):
-    """``a @ b`` at full float32 precision (:data:`HIGHEST`): the one spelling of a matrix
-    product in the solvers (``jnp.einsum`` calls pass ``precision=HIGHEST`` themselves)."""
-    return jnp.matmul(a, b, precision=HIGHEST)
-
-
-def _barrier(a):
-    """``a`` (an array or a tuple of arrays) itself, as the result of a while loop that runs
-    zero times. Its trip count (``bits == bits + 1``, false for every int32) is not known to
-    the compiler, so the loop stays, and XLA fuses nothing across a loop boundary. (The
-    bits are read from the first leaf's real part, so complex leaves pass too.)"""
-    first = jax.tree.leaves(a)[0]
-    bits = jax.lax.bitcast_convert_type(jnp.real(first.reshape(-1)[:1]).astype(jnp.float32),
-                                        jnp.int32)[0]
-    trips = (bits == bits + 1).astype(jnp.int32)
-    bump = functools.partial(jax.tree.map, lambda x: x + jnp.ones((), x.dtype))
-    return jax.lax.while_loop(lambda c: c[0] < trips, lambda c: (c[0] + 1, bump(c[1])),
-                              (jnp.int32(0), a))[1]
-
-
-@jax.custom_jvp
-def materialise(a):
-    """``a`` (an array, or a tuple of arrays computed together) in buffers of its own
-    before stencils or many consumers read it.
-
-    XLA:CPU otherwise fuses a cheap elementwise producer into each consumer and redoes it
-    there: 27 times per particle inside a G2P gather, once per consumer for a moment sum
-    read by a dozen fusions (measured: half of the fluid substep), or once per row of a
-    stack (a concatenation computes only the operand of its row, so the 13 stacked entries
-    of an elastic particle's rows each redid its polar decomposition: a 15x slower
-    substep). A tuple keeps its members apart; XLA may compute them in one multi-output
-    loop that shares their common work, but need not (the grid cloth's six reverse outputs
-    got six loops, hence its complex pairs). ``lax.optimization_barrier`` does not stop
-    this on CPU; an identity matmul did, but it now runs as a YNNPACK call costing 100-200
-    us on a 32^3 grid, and a sum over a zero pad becomes a YNNPACK reduction, slower still.
-    The zero-trip while loop of :func:`_barrier` costs a buffer write. The identity passes
-    tangents and cotangents straight through (a while loop has no transpose)."""
-    return _barrier(a)
-
-
-@materialise.defjvp
-def _materialise_jvp(primals, tangents):
-    return materialise(primals[0]), tangents[0]
-
-
-@jax.custom_vjp
-def materialise_cotangent(a):
-    """``a`` (an array or a tuple of arrays) itself; in reverse mode its cotangent is
-    materialised (:func:`materialise`) before it flows on to ``a``'s producers."""
-    return a
-
-
-def _materialise_cotangent_fwd(a):
-    return a, None
-
-
-def _materialise_cotangent_bwd(_, ct):
-    return (materialise(ct),)
-
-
-materialise_cotangent.defvjp(_materialise_cotangent_fwd, _materialise_cotangent_bwd)
 
 
 def stencil_weights(w):
@@ -133,9 +74,9 @@ def _row_starts(shape, base):
     rows = np.array([i * Wy * Wz * C + j * Wz * C for i in range(3) for j in range(3)],
                     np.int32)
     # materialised: the scatter and the gather of a substep share it (XLA merges the two
-    # identical computations), and left fused it is recomputed per row inside each
-    # (the trailing index axis is added after the barrier: materialised with it, the
-    # starts were written in a transposed layout and copied back, 90 us a substep)
+    # identical computations), and left fused it is recomputed per row inside each; the
+    # trailing index axis is added after the barrier (with it, XLA writes the starts in a
+    # transposed layout and copies them back)
     return materialise(flat[:, None] + rows)[:, :, None]
 
 
@@ -160,11 +101,11 @@ def _along(T, wa, axis, moment=False):
 def _moments(G, w):
     """(N, 4, C): ``sum_o W_o e_o[d] G_o``, contracted one axis at a time (W_o is a
     product over the axes, e_o affine in o): z with ``w_z`` and ``k w_z``, then y, then x,
-    about 90 multiply-adds per channel where the 27-term sums took 190."""
+    about 90 multiply-adds per channel against 190 for the 27-term sums."""
     wx, wy, wz = (w[:, :, a] for a in range(3))
     Z0, Z1 = _along(G, wz, 3), _along(G, wz, 3, moment=True)    # (N, 3, 3, C)
     Y00, Y01, Y10 = _along(Z0, wy, 2), _along(Z0, wy, 2, moment=True), _along(Z1, wy, 2)
-    # stacked on a leading axis (then moved): about 10 % faster than stacking on axis 1
+    # stacked on a leading axis, then moved to axis 1
     return jnp.moveaxis(materialise(jnp.stack(
         [_along(Y00, wx, 1), _along(Y00, wx, 1, moment=True),
          _along(Y01, wx, 1), _along(Y10, wx, 1)], axis=0)), 0, 1)
@@ -175,7 +116,7 @@ def _weight_cotangent(G, R, w):
     (G the (N, 3, 3, 3, C) block, U from the rows ``R``), through W_o = w[o_x, 0] w[o_y, 1]
     w[o_z, 2] by the product rule, one axis at a time: dw_x[i] = sum_jk dW_ijk w_y[j]
     w_z[k], and so on. ``dW`` is materialised first: each of the nine outputs reads all of
-    it (fused, the 27 channel sums were redone nine times: 40 % of the reverse substep)."""
+    it, and fused into them its 27 channel sums would be redone for each."""
     c = G.shape[-1]
     U = _node_values(R)
     dW = materialise(sum(G[..., k] * U[..., k] for k in range(c)))  # (N, 3, 3, 3)
@@ -210,7 +151,7 @@ def _spread_fwd(window, base, w, R):
 
 def _spread_bwd(window, res, dgrid):
     # residuals materialised again: in a checkpointed reverse pass XLA otherwise
-    # recomputes the weights from the positions inside every fused reader (3x slower)
+    # recomputes the weights from the positions inside every fused reader
     base, w, R = materialise(res)
     G = _gather(materialise(dgrid), base)
     return (np.zeros(base.shape, jax.dtypes.float0), _weight_cotangent(G, R, w),

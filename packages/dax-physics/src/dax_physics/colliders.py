@@ -10,6 +10,12 @@ A collider is split like the rest of dax-physics:
   :func:`advance` integrates the pose over a time step, so a collider serves as a gripper,
   a pusher or a held bowl.
 
+Points are (..., 3) [m] in the world frame unless said otherwise, signed distances [m]
+(negative inside the solid), normals unit vectors pointing out of it. Everything is pure
+and differentiable (the SDF's gradient is the normal); the MPM grid applies the contact
+conditions on its nodes (:func:`apply_colliders_grid`), the cloth on its vertices
+(:func:`apply_colliders`).
+
 Shapes, in the collider's local frame (the solid is where the SDF is negative):
 
 ``plane``     half-space ``z_local <= 0`` (a table: pose it at the table height).
@@ -47,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._pytree import pytree_dataclass
-from ._transfer import mm as _mm
+from .precision import mm as _mm
 
 SHAPES = {"plane": 0, "box": 3, "sphere": 1, "capsule": 2, "cylinder": 2, "bowl": 3}
 MODES = ("sticky", "slip", "separate")
@@ -146,9 +152,7 @@ def _safe_norm(v, axis=-1):
 
 
 # The signed distances below take the three coordinates as separate arrays (structure of
-# arrays): on CPU, XLA vectorises elementwise math on (M,) rows far better than on (M, 3)
-# rows of three. Measured on the two Pour-Water bowls over a 34 x 24 x 28 grid: 1.1 ms
-# against 5 ms for the same math on (M, 3) points with a per-point vmap(grad).
+# arrays): XLA:CPU vectorises elementwise math on (M,) rows, not on (M, 3) rows of three.
 
 def _hypot(*c):
     return jnp.sqrt(sum(ci * ci for ci in c) + _EPS)
@@ -158,10 +162,9 @@ def _outside_inside(d):
     """Exact SDF from per-axis distances ``d`` (tuple of arrays) of a convex slab set.
 
     The outside distance is ``hypot(...) - sqrt(eps)``: the ``eps`` that keeps the
-    gradient finite at the surface must not lift the distance there. (It used to: a point
-    on a face a rounding error outside got the distance sqrt(eps) = 1e-6 m, equal to
-    :data:`SURFACE_TOL`, so it missed the surface; in float64 a sticky box clamping a
-    cantilever lost its face nodes and the beam was one cell longer.)"""
+    gradient finite at the surface must not lift the distance there (a point on a face a
+    rounding error outside would get sqrt(eps) = 1e-6 m, equal to :data:`SURFACE_TOL`, and
+    miss the surface)."""
     outside = _hypot(*(jnp.maximum(di, 0.0) for di in d)) - math.sqrt(_EPS)
     inside_all = functools.reduce(jnp.logical_and, [di <= 0.0 for di in d])
     outside = jnp.where(inside_all, 0.0, outside)
@@ -176,7 +179,7 @@ def _cyl_sdf(px, py, pz, r, hh, zc=0.0):
     return _outside_inside((_hypot(px, py) - r, jnp.abs(pz - zc) - hh))
 
 
-def _local_sdf_c(spec: ColliderSpec, px, py, pz):
+def _local_sdf(spec: ColliderSpec, px, py, pz):
     d = spec.dims
     if spec.shape == "plane":
         return pz
@@ -197,11 +200,6 @@ def _local_sdf_c(spec: ColliderSpec, px, py, pz):
     return jnp.maximum(outer, -cavity)
 
 
-def local_sdf(spec: ColliderSpec, p):
-    """Signed distance [m] of local-frame points ``p`` (..., 3) to the collider's surface."""
-    return _local_sdf_c(spec, p[..., 0], p[..., 1], p[..., 2])
-
-
 def sdf(spec: ColliderSpec, pos, quat, x):
     """World-frame signed distance [m] and outward unit normal at points ``x`` (..., 3).
     The normal is the SDF's gradient (reverse mode over all points at once: each point's
@@ -211,7 +209,7 @@ def sdf(spec: ColliderSpec, pos, quat, x):
     if spec.shape == "plane":
         phi, grad = pt[2], jnp.zeros_like(pt).at[2].set(1.0)
     else:
-        phi, back = jax.vjp(lambda q: _local_sdf_c(spec, q[0], q[1], q[2]), pt)
+        phi, back = jax.vjp(lambda q: _local_sdf(spec, q[0], q[1], q[2]), pt)
         (grad,) = back(jnp.ones_like(phi))
     n = _mm(R, grad)
     n = (n / jnp.sqrt(jnp.sum(n * n, axis=0) + _EPS)).T
@@ -251,9 +249,8 @@ def project_velocity(spec: ColliderSpec, v, v_c, n, inside, friction=None):
 #: Grid nodes within this distance [m] outside a collider's surface count as touching it.
 #: MPM nodes lie on a lattice, and scenes put surfaces on lattice planes (a bowl's rim at a
 #: whole number of cells): such a node's SDF is zero up to float32 rounding (+-4e-9 m at
-#: 0.1 m), so without a tolerance whether it touches depends on how XLA fused the
-#: arithmetic (measured: 124 rim nodes of the Pour-Water target bowl flipped between two
-#: compilations, and the water's path with them).
+#: 0.1 m), so without a tolerance whether it touches would depend on how XLA fused the
+#: arithmetic, and two compilations of one scene could differ.
 SURFACE_TOL = 1e-6
 
 
@@ -312,8 +309,7 @@ def apply_colliders_grid(specs, state: ColliderState, v, dx: float, window, orig
 
     A bounded collider is evaluated only on the cube of nodes around its bounding sphere
     (a static size, placed where the collider is), not on the whole window: nodes outside
-    it cannot be inside the collider, so the result is the same. On Pour-Water this
-    evaluates each bowl on 3.4k or 4.9k of the 23k nodes. Nodes within
+    it cannot be inside the collider, so the result is the same. Nodes within
     :data:`SURFACE_TOL` outside a surface count as touching it; nodes more than dx/2 inside
     a bowl's wall move with it. ``friction``: as for :func:`apply_colliders`."""
     window = tuple(int(w) for w in window)

@@ -22,7 +22,8 @@ Models (Kirchhoff stress ``tau``; ``J = det F``):
              ``tau = K/2 (J^2 - 1) I + mu dev(bbar_e)``, ``bbar_e = J^{-2/3} b_e``; the trial
              deviator is projected back onto ``|s| <= sqrt(2/3) sigma_y`` with yield stress
              ``sigma_y`` [Pa]; plastic flow is isochoric. For these particles the state's
-             ``F`` slot stores ``b_e`` (identity at rest), not a deformation gradient.
+             ``H`` slot stores ``b_e - I`` (zero at rest; ``MPMState.F`` is then ``b_e``),
+             not a displacement gradient.
 
 The return mapping needs no SVD, so it is differentiable everywhere except on the yield
 surface itself (and finite there).

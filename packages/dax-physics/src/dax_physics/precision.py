@@ -1,6 +1,7 @@
 """What an accelerator computes differently: matrix products below full float32 precision
-(:func:`dots` finds them) and scatter-adds in a run-to-run order
-(:func:`deterministic_gpu_ops` fixes it).
+(:data:`HIGHEST` and :func:`mm` ask for full precision, :func:`dots` finds the products
+that do not) and scatter-adds in a run-to-run order (:func:`deterministic_gpu_ops` fixes
+it).
 
 JAX's default precision lets a float32 dot product round its inputs to TF32 (a 10-bit
 mantissa) on NVIDIA GPUs since Ampere, and to bfloat16 on TPUs. CPU ignores the setting,
@@ -11,11 +12,9 @@ to keep it so.
 
 The MPM particle-to-grid transfer and the mesh cloth's strain limiting (and its scatter
 spring sum) are scatter-adds. On a GPU, XLA accumulates them with atomics whose order
-changes from run to run, so the same program on the same inputs gives different low bits
-(measured on an H100: 4e-7 m after 500 MPM substeps; a Whip-Rope rollout's action
-gradient, 4e-6), and through contact those bits can grow.
-``--xla_gpu_deterministic_ops=true`` makes XLA sum in a fixed order, at a price (there: the
-MPM forward 1.7x slower, its gradient 1.2x). ``benchmarks/accelerator.py`` measures both.
+changes from run to run, so the same program on the same inputs gives different low bits,
+and through contact those bits can grow. ``--xla_gpu_deterministic_ops=true`` makes XLA
+sum in a fixed order, at a cost in speed that ``benchmarks/accelerator.py`` measures.
 """
 
 from __future__ import annotations
@@ -24,6 +23,11 @@ import os
 import re
 
 import jax
+import jax.numpy as jnp
+
+#: The precision every float32 matrix product in the solvers asks for (full float32 on
+#: GPUs with TF32 and on TPUs; CPU computes every product at full precision anyway).
+HIGHEST = jax.lax.Precision.HIGHEST
 
 _FULL = re.compile(r"precision = \[HIGHEST, HIGHEST\]")
 
@@ -34,6 +38,12 @@ def dots(fn, *args) -> tuple[list[str], list[str]]:
     text = jax.jit(fn).lower(*args).as_text()
     found = [line.strip() for line in text.splitlines() if "dot_general" in line]
     return found, [d for d in found if not _FULL.search(d)]
+
+
+def mm(a, b):
+    """``a @ b`` at full float32 precision (:data:`HIGHEST`): the one spelling of a matrix
+    product in the solvers (``jnp.einsum`` calls pass ``precision=HIGHEST`` themselves)."""
+    return jnp.matmul(a, b, precision=HIGHEST)
 
 
 DETERMINISTIC_FLAG = "--xla_gpu_deterministic_ops=true"

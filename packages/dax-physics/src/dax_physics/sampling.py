@@ -62,30 +62,3 @@ def capsule_chain(points, radius, dx, ppc=8, seed=0, jitter=1.0):
     closest = a[None] + t[..., None] * ab[None]
     d = np.min(np.linalg.norm(x[:, None, :] - closest, axis=-1), axis=1)
     return x[d <= radius].astype(np.float32), vol
-
-
-def rope_order(x, points):
-    """Arc-length parameter [m] of each particle's projection onto the polyline ``points``:
-    sort by it to get the rope's particles from one end to the other."""
-    pts = np.asarray(points, np.float64)
-    a, b = pts[:-1], pts[1:]
-    ab = b - a
-    seg_len = np.linalg.norm(ab, axis=1)
-    t = np.einsum("nsk,sk->ns", x[:, None, :] - a[None], ab) / np.maximum(seg_len ** 2, 1e-30)
-    t = np.clip(t, 0.0, 1.0)
-    d = np.linalg.norm(x[:, None, :] - (a[None] + t[..., None] * ab[None]), axis=-1)
-    s = np.argmin(d, axis=1)
-    start = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
-    return start[s] + t[np.arange(len(x)), s] * seg_len[s]
-
-
-def point_cloud(points, volume, dx=None, ppc=None):
-    """Use given points (N, 3) [m] as particles sharing a total ``volume`` [m^3]."""
-    x = np.asarray(points, np.float32)
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) == 0:
-        raise ValueError(f"a point cloud must have shape (N > 0, 3), got {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError("point cloud contains NaN or inf")
-    if not volume > 0:
-        raise ValueError(f"point cloud volume must be > 0 m^3, got {volume}")
-    return x, float(volume) / len(x)

@@ -2,9 +2,13 @@
 
 * General triangle meshes (:mod:`.sim`, :mod:`.mesh`): structural, shear and bending
   springs derived from the mesh, gravity, air drag, table contact with Coulomb friction,
-  the shared SDF colliders, vertex-vertex self-collision via a static-shape spatial hash,
-  strain limiting, grippers and the pick-and-place macro (:mod:`.grasp`), checkpointed
-  rollouts.
+  the shared SDF colliders, vertex-vertex self-collision (every pair, or a static-shape
+  spatial hash), strain limiting, grippers and the pick-and-place macro (:mod:`.grasp`),
+  checkpointed rollouts.
+* The verbs of :mod:`dax_physics.mpm`, same argument order: ``step(cfg, cloth, state)``,
+  ``rollout(cfg, cloth, state, n_substeps, *, segment=None, unroll=1, gripper_vel=None)``,
+  ``check_params(cfg, cloth)``, ``max_stable_dt(cfg, cloth)``, ``check_state(state)``,
+  ``grasp``, ``release``.
 
 See ``README_cloth.md`` for the parameters, their units and the stable time step.
 """
@@ -15,7 +19,6 @@ from .mesh import (
     load_mesh,
     mesh_springs,
     polygon_mesh,
-    save_mesh,
     square_mesh,
     tshirt_mesh,
     tshirt_outline,
@@ -27,7 +30,7 @@ from .sim import (
     Cloth,
     ClothConfig,
     ClothState,
-    check_stable,
+    check_params,
     check_state,
     energy,
     make_cloth,
@@ -48,9 +51,9 @@ from .sim import (
 
 __all__ = [
     "ALL_PAIRS_MAX", "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "MeshError",
-    "PickPlace", "check_stable", "check_state", "energy", "grasp", "load_mesh", "make_cloth",
+    "PickPlace", "check_params", "check_state", "energy", "grasp", "load_mesh", "make_cloth",
     "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper", "nearest_vertex_point",
-    "pick_and_place", "polygon_mesh", "release", "rollout", "save_mesh", "scale_moduli",
+    "pick_and_place", "polygon_mesh", "release", "rollout", "scale_moduli",
     "self_collision_candidates", "self_collision_forces", "self_collision_overflow",
     "self_search_mode", "spring_forces", "spring_layout", "square_cloth", "square_mesh",
     "step", "tshirt_cloth", "tshirt_mesh", "tshirt_outline", "validate_mesh",

@@ -149,17 +149,6 @@ def load_mesh(path):
     return compact(pts, np.concatenate(tris).astype(np.int32))
 
 
-def save_mesh(path, vertices, faces):
-    """Write a triangle mesh with meshio (the ``mesh`` extra), e.g. for ParaView/Blender."""
-    try:
-        import meshio
-    except ImportError as e:  # pragma: no cover
-        raise ImportError("writing cloth meshes needs meshio: pip install 'dax-physics[mesh]'"
-                          ) from e
-    meshio.write_points_cells(str(path), np.asarray(vertices),
-                              [("triangle", np.asarray(faces))])
-
-
 # ----------------------------------------------------------------------------- topology
 
 def compact(vertices, faces):

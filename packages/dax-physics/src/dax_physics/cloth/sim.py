@@ -10,8 +10,14 @@ Split like the rest of dax-physics:
 * :class:`ClothState` (pytree of arrays): vertex positions and velocities, gripper
   attachments, gripper poses and velocity commands, collider poses.
 
-Units are SI, z is up. Every public function is pure and works under ``jax.jit``,
-``jax.vmap`` and ``jax.grad``.
+The verbs are those of :mod:`dax_physics.mpm`, with the same argument order: :func:`step`,
+:func:`rollout` (neither jitted: the caller jits), :func:`check_params` (eager, once: the
+stable ``dt`` depends on the springs and masses, so :class:`ClothConfig` alone cannot
+check it), :func:`max_stable_dt`, :func:`check_state`; ``grasp`` and ``release`` are in
+:mod:`dax_physics.cloth.grasp`.
+
+Units are SI, z is up; V vertices, E springs, G grippers. Every public function but the
+checks is pure and works under ``jax.jit``, ``jax.vmap`` and ``jax.grad``.
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import colliders as _col
+from .._checks import step_count, unstable_dt
+from .._fusion import materialise
 from .._pytree import pytree_dataclass, static_field
 from ..scan import checkpointed_scan
 from . import mesh as _mesh
@@ -32,12 +40,9 @@ _TINY = 1e-20
 #: Table friction laws (:attr:`ClothConfig.friction_model`).
 FRICTION_MODELS = ("coulomb", "smooth")
 SELF_SEARCHES = ("auto", "all", "hash")
-# Largest mesh for which self_search="auto" tests all vertex pairs. On a 2-core CPU one jitted
-# self-collision force evaluation of a folded square cloth (thickness 3 cm) takes 95 us with
-# all pairs against 180 us with the 16-slot hash at 121 vertices, 590 against 637 us at 441
-# and 681 against 526 us at 529, where the hash also drops 313 of the 529 vertices (its
-# reverse mode: 179 against 400 us at 121 vertices). All pairs stays exact at any stacking,
-# so it is used up to a size where its V^2 cost is still a few milliseconds.
+#: Largest mesh for which ``self_search="auto"`` tests all vertex pairs: all pairs stays
+#: exact however many layers stack (the hash drops the vertices of crowded cells), and its
+#: V^2 pair tests stay affordable up to about this size.
 ALL_PAIRS_MAX = 1024
 
 
@@ -47,7 +52,7 @@ ALL_PAIRS_MAX = 1024
 class ClothConfig:
     """Static cloth-solver configuration (hashable; pass as a jit static argument).
 
-    dt: substep [s]; checked against :func:`max_stable_dt` by :func:`check_stable`.
+    dt: substep [s], > 0; checked against :func:`max_stable_dt` by :func:`check_params`.
     gravity: acceleration (gx, gy, gz) [m/s^2].
     air_drag: linear air drag per unit cloth area [kg/(m^2 s)]; force ``-air_drag A_i v_i``.
     table_height: height of the table plane [m]; ``None`` for no table.
@@ -226,12 +231,11 @@ def spring_layout(pairs, n_vertices: int, min_share: float = 0.125, max_classes:
 
     A class is an offset ``o > 0`` shared by at least ``min_share * n_vertices`` springs
     ``(i, i + o)`` (a second spring on the same pair of vertices goes to a second class of
-    the same offset; at most ``max_classes`` classes, the largest first: with more than 16
-    slots XLA stopped fusing the sum well, and the 3584-vertex T-shirt's 24 slots cost 2.2 ms
-    per substep against 0.50 ms with 16 and 0.82 ms all scattered). Each vertex sums
+    the same offset; at most ``max_classes`` classes, the largest first: past 16 slots
+    XLA:CPU no longer fuses the slot sum into one loop). Each vertex sums
     the springs of a class from both ends, ``(i, i + o)`` and ``(i - o, i)``, with the
     vertex arrays shifted by ``+o`` and ``-o``: no gather of positions and no scatter of
-    forces, like a stencil on a regular grid, which is what makes the sum fast on CPU.
+    forces, like a stencil on a regular grid.
     Meshes numbered row by row profit (:func:`dax_physics.cloth.square_mesh`: every
     spring is in a class; :func:`dax_physics.cloth.tshirt_mesh`: most); the other springs
     (``residual``) are summed with a scatter.
@@ -357,21 +361,31 @@ def max_stable_dt(cfg: ClothConfig, cloth: Cloth, safety: float = 0.9) -> float:
     return float(safety * dt.min())
 
 
-def _is_concrete(*trees) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for t in trees
-                   for leaf in jax.tree_util.tree_leaves(t))
-
-
-def check_stable(cfg: ClothConfig, cloth: Cloth):
-    """Raise ``ValueError`` naming the largest stable dt if ``cfg.dt`` exceeds it. A no-op
-    when ``cloth`` is traced (inside jit/vmap/grad): check once outside."""
-    if not _is_concrete(cloth):
-        return
-    dtmax = max_stable_dt(cfg, cloth)
-    if not cfg.dt <= dtmax:
-        raise ValueError(f"cloth substep dt={cfg.dt:g} s is unstable for these springs and "
-                         f"masses: the largest stable dt is {dtmax:.4g} s (reduce dt or the "
-                         f"stiffness, or raise the vertex mass)")
+def check_params(cfg: ClothConfig, cloth: Cloth) -> None:
+    """Raise ``ValueError`` naming the problem if ``cloth`` does not fit together or makes
+    ``cfg.dt`` unstable: arrays of mismatched shapes, non-finite or non-positive masses or
+    rest lengths, negative or non-finite stiffness, damping or table friction, or ``cfg.dt``
+    above :func:`max_stable_dt` (named in the message). Needs concrete arrays (call it
+    once, outside ``jit``)."""
+    V, E = int(np.shape(cloth.mass)[-1]), int(np.shape(cloth.pairs)[0])
+    fields = {"mass": ((V,), 0.0, False), "area": ((V,), 0.0, True),
+              "rest_length": ((E,), 0.0, False), "stiffness": ((E,), 0.0, True),
+              "damping": ((E,), 0.0, True)}
+    if cloth.table_friction is not None:
+        fields["table_friction"] = ((2,), 0.0, True)
+    for name, (shape, low, may_equal) in fields.items():
+        a = np.asarray(getattr(cloth, name), float)
+        if a.shape != shape:
+            raise ValueError(f"Cloth.{name} must have shape {shape}, got {a.shape}")
+        ok = np.isfinite(a) & ((a >= low) if may_equal else (a > low))
+        if not ok.all():
+            raise ValueError(f"Cloth.{name} must be finite and {'>=' if may_equal else '>'} "
+                             f"{low:g}, got {a[~ok][:5].tolist()} (first offenders)")
+    limit = max_stable_dt(cfg, cloth)
+    if not cfg.dt <= limit:
+        raise unstable_dt(cfg.dt, limit, "for these springs and masses (Gershgorin bound on "
+                          "the fastest mode, 0.9 safety)",
+                          "lower dt or the stiffness, or raise the vertex mass")
 
 
 def check_state(state: ClothState) -> None:
@@ -424,14 +438,6 @@ def _shifted(a, o: int):
     return jnp.pad(a, ((0, 0), (w, w)))[:, w + o:w + o + V]
 
 
-def _materialised(a):
-    """``a`` unchanged, as the output of a reduction (a sum over a length-2 axis with zeros):
-    on CPU XLA does not fuse a reduction into its consumers, so ``a`` is computed once.
-    Without it XLA copies a running sum over the slots into every fusion that reads it
-    (the velocity update, the table contact, each output), which measured 5-15x slower."""
-    return jnp.sum(jnp.stack([a, jnp.zeros_like(a)]), axis=0)
-
-
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _stencil_sum(offsets, table, pairs, k, L, c, xt, vt):
     """``f_i = sum_s (k (ln - L) + c dv.u) u`` with ``d = x_{i + o_s} - x_i``, ``u = d / ln``,
@@ -447,7 +453,7 @@ def _stencil_sum(offsets, table, pairs, k, L, c, xt, vt):
         s = (ks[slot] * (ln - Ls[slot])
              + cs[slot] * (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv) * inv
         f = f + s[None] * d
-    return _materialised(f)
+    return materialise(f)
 
 
 def _stencil_sum_fwd(offsets, table, pairs, k, L, c, xt, vt):
@@ -456,8 +462,8 @@ def _stencil_sum_fwd(offsets, table, pairs, k, L, c, xt, vt):
 
 def _stencil_sum_bwd(offsets, res, g):
     """Reverse pass: the autodiff of the same springs summed per spring with a scatter
-    (:func:`_scatter_spring_forces`), which on CPU is faster backwards than the transpose
-    of the slot sum (its sixteen padded slices per substep); the two agree to rounding."""
+    (:func:`_scatter_spring_forces`), whose transpose is gathers where the slot sum's would
+    be sixteen padded slices per substep; the two agree to rounding."""
     table, pairs, k, L, c, xt, vt = res
     in_stencil = jnp.zeros(k.shape[0] + 1, k.dtype).at[table.reshape(-1)].set(1.0)[:-1]
 
@@ -577,7 +583,8 @@ def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v):
     candidates; the forces are the same wherever the hash drops nothing."""
     h = cfg.thickness
     V = x.shape[0]
-    # component-wise arrays (gathering 1-D components is much faster on CPU than (.., 3) rows)
+    # component-wise arrays: XLA:CPU vectorises gathers of contiguous 1-D components,
+    # not of (.., 3) rows
     xt, rt = x.T, cloth.rest_pos.T
     if self_search_mode(cfg, V) == "all":
         def other(a):
@@ -683,8 +690,7 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
     limiting; grippers and colliders advance.
 
     Computed on component-major (3, V) copies of the positions and velocities (the
-    layout of the stencil sum, :func:`spring_forces`); the transposes cost nothing
-    measurable.
+    layout of the stencil sum, :func:`spring_forces`).
     """
     xt, vt = state.x.T, state.v.T
     dt = cfg.dt
@@ -717,37 +723,36 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
                          colliders=cs, t=state.t + dt)
 
 
-def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_steps: int,
-            gripper_vel=None, segment: int | None = None, unroll: int = 1) -> ClothState:
-    """Run ``n_steps`` substeps of :func:`step` as one scan.
+def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, *,
+            segment: int | None = None, unroll: int = 1, gripper_vel=None) -> ClothState:
+    """Run ``n_substeps`` substeps of :func:`step` as one scan (pure, not jitted: jit it
+    with ``cfg``, ``n_substeps`` and ``segment`` static).
 
-    gripper_vel: optional (n_steps, G, 3) [m/s] gripper velocity command per substep
-        (otherwise ``state.gripper_vel`` is held).
     segment: substeps per checkpointed segment (:func:`dax_physics.checkpointed_scan`,
         whose remainder rule applies), so reverse-mode memory grows with the number of
         segments rather than substeps; ``None``: no checkpointing. Forward values are the
         same either way up to float rounding (XLA may fuse a segment's substeps differently).
-    Raises ``ValueError`` (when called with concrete arrays) if ``cfg.dt`` is unstable, and
-    for a negative ``n_steps``.
+    unroll: passed to the scan.
+    gripper_vel: optional (n_substeps, G, 3) [m/s] gripper velocity command per substep
+        (otherwise ``state.gripper_vel`` is held).
+    A negative or non-integer ``n_substeps`` raises ``ValueError`` (0 returns ``state``).
+    The time step is checked by :func:`check_params`, not here.
     """
-    check_stable(cfg, cloth)
-    if isinstance(n_steps, bool) or int(n_steps) != n_steps or n_steps < 0:
-        raise ValueError(f"n_steps must be an int >= 0, got {n_steps!r}")
-    n_steps = int(n_steps)
-    if n_steps == 0:
+    n_substeps = step_count(n_substeps, "n_substeps")
+    if n_substeps == 0:
         return state
     if gripper_vel is not None:
         gripper_vel = jnp.asarray(gripper_vel, state.x.dtype)
-        if gripper_vel.shape[0] != n_steps:
-            raise ValueError(f"gripper_vel must have {n_steps} rows (one per substep), got "
-                             f"shape {gripper_vel.shape}")
+        if gripper_vel.shape[0] != n_substeps:
+            raise ValueError(f"gripper_vel must have {n_substeps} rows (one per substep), "
+                             f"got shape {gripper_vel.shape}")
 
     def body(s, gv):
         if gv is not None:
             s = s.replace(gripper_vel=gv)
         return step(cfg, cloth, s), None
 
-    return checkpointed_scan(body, state, gripper_vel, length=n_steps, segment=segment,
+    return checkpointed_scan(body, state, gripper_vel, length=n_substeps, segment=segment,
                              unroll=unroll)[0]
 
 

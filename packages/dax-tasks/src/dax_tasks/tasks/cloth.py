@@ -218,7 +218,7 @@ class ClothTask(Env):
                 raise ValueError(f"cloth {name} must be >= 0, got {float(getattr(physics, name))}")
         cloth = _cloth.cloth_with(self.base_cloth, physics)
         try:
-            dc.check_stable(self.cfg, cloth)
+            dc.check_params(self.cfg, cloth)
         except ValueError as err:
             raise ValueError(f"unstable time step for these cloth parameters: {err}") from None
 
