@@ -77,7 +77,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks._timing import timed_compile
-from dax_tasks.core.registry import TASKS, env_class, get_spec, make
+from dax_tasks import TASKS, env_class, get_spec, make
 from dax_tasks.io import atomic_write
 
 #: Half-width [m] of the hat kernel (in rest arc length) of a rope's centre-line points.

@@ -26,12 +26,12 @@ def device_env(devices: int) -> dict:
     return env
 
 
-def run_all(jobs: list[tuple[list[str], int]], timeout: float) -> list[str]:
-    """Run every ``(args, devices)`` job (``python *args`` with ``devices`` CPU devices) at
-    the same time (XLA compiles mostly on one core) and return their stdouts; fail the
-    test with every job's output if one exits non-zero or they run past ``timeout``
-    seconds (all are killed then)."""
-    procs = [subprocess.Popen([sys.executable, *args], env=device_env(devices),
+def run_all(jobs: list[tuple[list[str], int]], timeout: float, cwd=None) -> list[str]:
+    """Run every ``(args, devices)`` job (``python *args`` with ``devices`` CPU devices, in
+    directory ``cwd``) at the same time (XLA compiles mostly on one core) and return their
+    stdouts; fail the test with every job's output if one exits non-zero or they run past
+    ``timeout`` seconds (all are killed then)."""
+    procs = [subprocess.Popen([sys.executable, *args], env=device_env(devices), cwd=cwd,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for args, devices in jobs]
     outputs = []

@@ -1,18 +1,21 @@
 """Two local CPU processes joined by ``jax.distributed`` (``python -m
-dax_tasks.core.distributed``) run one batch of Fold-Cloth-1 rollouts (coarse: 4 x 4 vertices,
-12 substeps per action), forward and backward, split over both processes' devices; both
-gather the same result, bit for bit, and it equals the single-process run within
-``rtol=1e-5, atol=1e-6`` (the same float-rounding reasons as in ``test_sharding.py``: the
-summed return and each process's program for 2 envs instead of 4)."""
+benchmarks.distributed``, run from the repository root) run one batch of Fold-Cloth-1
+rollouts (coarse: 4 x 4 vertices, 12 substeps per action), forward and backward, split over
+both processes' devices; both gather the same result, bit for bit, and it equals the
+single-process run within ``rtol=1e-5, atol=1e-6`` (the same float-rounding reasons as in
+``test_sharding.py``: the summed return and each process's program for 2 envs instead of
+4)."""
 
 import json
+from pathlib import Path
 
 import chex
 import numpy as np
 import pytest
 from multidevice_helpers import free_port, run_all
 
-ARGS = ["-m", "dax_tasks.core.distributed", "--task", "fold_cloth1", "--batch", "4",
+ROOT = Path(__file__).resolve().parents[2]
+ARGS = ["-m", "benchmarks.distributed", "--task", "fold_cloth1", "--batch", "4",
         "--steps", "3", "--seed", "0", "--set", "substeps=12", "--set", "scene.n=4",
         "--set", "scene.settle_substeps=6", "--no-goal-cache"]
 TIMEOUT = 240
@@ -33,7 +36,7 @@ def results(tmp_path_factory):
         jobs.append(([*ARGS, "--coordinator", coordinator, "--num-processes", "2",
                       "--process-id", str(pid), "--timeout", "120",
                       "--out", str(tmp / f"{pid}.json")], 1))
-    run_all(jobs, timeout=TIMEOUT)
+    run_all(jobs, timeout=TIMEOUT, cwd=ROOT)
     return {name: json.loads((tmp / f"{name}.json").read_text())
             for name in ("single", "0", "1")}
 

@@ -225,6 +225,16 @@ def test_minari_export_loads_with_minari_and_recovers_the_env(env, demo, tmp_pat
         assert isinstance(ds.action_space, gym.spaces.Box)
     finally:
         os.environ.pop("MINARI_DATASETS_PATH", None)
+    # a fresh process that imports neither dax_tasks nor dax_data rebuilds the env too
+    code = ("import sys, minari\n"
+            "ds = minari.load_dataset('dax/fold_cloth1/expert-v0')\n"
+            "env = ds.recover_environment()\n"
+            "print(env.spec.id, env.reset(seed=0)[0].shape, 'dax_tasks.gym' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**env, "MINARI_DATASETS_PATH": str(out)}, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    want = f"dax/FoldCloth1-v0 {episodes[0].observations.shape[1:]} True"
+    assert proc.stdout.strip() == want, proc.stdout
     # the same id again is refused; a file recorded with overrides cannot name the env
     assert_one_line_error(run(env, "export", demo, "--format", "minari", "--out", out),
                           "already exists")

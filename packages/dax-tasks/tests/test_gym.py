@@ -1,6 +1,9 @@
-"""Gymnasium adapters: the nine ids are registered, check_env passes, vector env shapes,
-bad actions are refused with a clear error and out-of-bound actions are clipped."""
+"""Gymnasium adapters: importing dax_tasks.gym (or naming it as an id's module prefix)
+registers the nine ids, check_env passes, vector env shapes, bad actions are refused with a
+clear error and out-of-bound actions are clipped."""
 
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -112,22 +115,25 @@ def test_make_kwargs_pass_through_to_dax_tasks_make():
     assert not np.array_equal(first[0], first[2])
 
 
-def test_ids_of_unimplemented_tasks_raise_not_implemented():
-    missing = [n for n in dax_tasks.TASKS if n not in dax_tasks.available()]
-    for name in missing:
-        with pytest.raises(NotImplementedError, match="not implemented"):
-            gym.make(GYM_IDS[name])
-
-
-def test_importing_dax_tasks_does_not_import_gymnasium_but_registers_the_ids():
-    import subprocess
-    import sys
-
+def test_importing_dax_tasks_registers_no_gymnasium_id():
     code = ("import sys, dax_tasks; assert 'gymnasium' not in sys.modules, 'imported'; "
-            "import gymnasium; print(gymnasium.spec('dax/PushRope-v0').entry_point)")
+            "import gymnasium; print('dax/PushRope-v0' in gymnasium.registry)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "dax_tasks.gym:DaxEnv", out.stdout
-    code = "import gymnasium, dax_tasks; print('dax/WhipRope-v0' in gymnasium.registry)"
+    assert out.stdout.strip() == "False", out.stdout
+
+
+def test_the_module_prefix_of_an_id_imports_dax_tasks_gym_in_a_fresh_process():
+    """Gymnasium's documented ``"module:id"`` form: nothing imported first."""
+    code = ("import gymnasium\n"
+            "env = gymnasium.make('dax_tasks.gym:dax/FoldCloth1-v0', seed=1)\n"
+            "obs, _ = env.reset()\n"
+            "print(env.spec.id, env.spec.entry_point, obs.shape)\n"
+            "venv = gymnasium.make_vec('dax_tasks.gym:dax/FoldCloth1-v0', num_envs=2,\n"
+            "                          vectorization_mode='vector_entry_point')\n"
+            "print(venv.reset(seed=0)[0].shape)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.stdout.strip() == "True", out.stderr
+    assert out.returncode == 0, out.stderr
+    single, batch = out.stdout.strip().splitlines()
+    assert single == "dax/FoldCloth1-v0 dax_tasks.gym:DaxEnv (366,)", single
+    assert batch == "(2, 366)", batch

@@ -1,6 +1,10 @@
-"""Registry, spec validation and input checks that need no compiled step."""
+"""Registry (the nine tasks, a task of one's own), spec validation and input checks that
+need no compiled step."""
 
 import dataclasses
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,18 +28,68 @@ def test_unknown_name_error_lists_valid_names():
         assert name in str(err.value), f"expected {name!r} in the message, got {err.value}"
 
 
-def test_declared_but_unimplemented_task_says_what_is_available(monkeypatch):
-    from types import MappingProxyType
+def test_importing_dax_tasks_registers_the_nine_without_importing_a_task_module():
+    code = ("import sys, dax_tasks; print(','.join(dax_tasks.available())); "
+            "print([m for m in sys.modules if m.startswith('dax_tasks.tasks.')]); "
+            "env = dax_tasks.make('pour_water', cache_goal=False); "
+            "print(type(env).__module__, type(env).__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    names, loaded, built = out.stdout.strip().splitlines()
+    assert tuple(names.split(",")) == dax_tasks.TASKS, names
+    assert loaded == "[]", f"expected no task module imported, got {loaded}"
+    assert built == "dax_tasks.tasks.pour Pour", built
 
+
+def test_the_core_names_no_task():
+    core = Path(dax_tasks.core.__file__).parent
+    for path in sorted(core.glob("*.py")):
+        text = path.read_text()
+        for task_word in ("dax_tasks.tasks.", "from ..tasks", "pour_water", "fold_cloth1"):
+            assert task_word not in text, f"{path.name} names {task_word!r}"
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    """dax_tasks.core.registry with a copy of the registered tasks, restored afterwards."""
     from dax_tasks.core import registry
 
-    modules = dict(registry._MODULES)
-    modules["fold_cloth1"] = ("dax_tasks.no_such_module", "ClothTask", "FOLD_CLOTH1")
-    monkeypatch.setattr(registry, "_MODULES", MappingProxyType(modules))
-    with pytest.raises(NotImplementedError, match="push_rope") as err:
-        dax_tasks.make("fold_cloth1")
-    assert "fold_cloth1" in str(err.value), f"expected the task name in {err.value}"
-    assert "fold_cloth1" not in dax_tasks.available()
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    return registry
+
+
+def test_a_task_registers_by_object_or_by_module_attribute_string(registry):
+    spec = dataclasses.replace(dax_tasks.get_spec("push_rope"), name="my_rope")
+    here = f"{__name__}:MY_ROPE_SPEC"
+    globals()["MY_ROPE_SPEC"] = spec
+    dax_tasks.register("my_rope", "dax_tasks.tasks.push_rope:PushRope", here)
+    dax_tasks.register("my_rope", "dax_tasks.tasks.push_rope:PushRope", here)  # the same: ok
+    dax_tasks.register("my_rope_object", dax_tasks.env_class("push_rope"),
+                       dataclasses.replace(spec, name="my_rope_object"))
+    assert dax_tasks.available()[:9] == dax_tasks.TASKS
+    assert dax_tasks.available()[9:] == ("my_rope", "my_rope_object")
+    assert dax_tasks.get_spec("my_rope") is spec
+    assert dax_tasks.env_class("my_rope") is dax_tasks.env_class("my_rope_object")
+    assert dax_tasks.check_overrides("my_rope", {"horizon": 2}) == {"horizon": 2}
+    with pytest.raises(ValueError, match="'my_rope' has no reference resolution"):
+        dax_tasks.get_spec("my_rope", "reference")
+
+
+def test_register_refuses_a_clash_and_bad_entries(registry):
+    spec = dax_tasks.get_spec("push_rope")
+    with pytest.raises(ValueError, match="'push_rope' is already registered.*replace=True"):
+        dax_tasks.register("push_rope", "dax_tasks.tasks.pour:Pour", spec)
+    with pytest.raises(ValueError, match="its spec is named 'push_rope'"):
+        dax_tasks.register("other_rope", "dax_tasks.tasks.push_rope:PushRope", spec)
+    with pytest.raises(ValueError, match="env must be an Env subclass or a 'module:attr"):
+        dax_tasks.register("other_rope", "PushRope", spec)
+    with pytest.raises(ValueError, match="spec must be a TaskSpec"):
+        dax_tasks.register("other_rope", dax_tasks.Env, {"name": "other_rope"})
+    with pytest.raises(ValueError, match="non-empty string"):
+        dax_tasks.register("", dax_tasks.Env, spec)
+    dax_tasks.register("push_rope", "dax_tasks.tasks.pour:Pour", "dax_tasks.tasks.pour:POUR_SOUP",
+                       replace=True)
+    assert dax_tasks.env_class("push_rope").__name__ == "Pour"
 
 
 def test_unknown_override_is_refused():

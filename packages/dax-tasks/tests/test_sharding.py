@@ -1,7 +1,8 @@
-"""dax_tasks.core.sharding and dax_tasks.core.distributed in this (one-device) process: the no-op on
-one device, the errors for bad input. The multi-device behaviour (4 forced CPU devices,
-two processes) is tested in tests/multidevice (``nox -s multidevice``), each in fresh
-processes since the device count is fixed when JAX starts."""
+"""dax_tasks.core.sharding and dax_tasks.core.distributed in this (one-device) process: the
+no-op on one device, the errors for bad input. The multi-device behaviour (4 forced CPU
+devices, two processes) is tested in tests/multidevice (``nox -s multidevice``), each in
+fresh processes since the device count is fixed when JAX starts; the multi-host command
+line (``benchmarks.distributed``) in tests/benchmarks."""
 
 import jax
 import jax.numpy as jnp
@@ -48,19 +49,6 @@ def test_shard_batch_refuses_a_leaf_without_the_batch_axis():
 def test_initialize_refuses_bad_arguments_before_joining(args, match):
     with pytest.raises(ValueError, match=match):
         distributed.initialize(*args)
-
-
-@pytest.mark.parametrize("argv, message", [
-    (["--num-processes", "2"], "--num-processes / --process-id need --coordinator"),
-    (["--coordinator", "nohost"], "coordinator must be HOST:PORT"),
-    (["--set", "substeps"], "--set takes KEY=VALUE"),
-    (["--set", "scene.nope=3"], "unknown ClothScene field(s) ['scene.nope']"),
-    (["--set", "substeps=1.5"], "substeps"),
-])
-def test_distributed_command_reports_bad_input_in_one_line(argv, message, capsys):
-    assert distributed.main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and message in err and "\n" not in err, err
 
 
 def test_rollout_gradient_refuses_a_bad_batch():

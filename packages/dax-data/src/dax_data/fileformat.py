@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
+import inspect
 import json
 import os
 import warnings
@@ -53,7 +54,7 @@ import numpy as np
 
 #: Identifies a dax-data demonstration file (the ``format`` attribute).
 FORMAT_NAME = "dax-data/demonstrations"
-#: The layout this version writes; it reads versions 1 to 3 and refuses larger numbers.
+#: The layout this version writes; it reads versions 1 up to it and refuses larger ones.
 #: Version 2: ``spec`` is the spec's own JSON (:meth:`dax_tasks.TaskSpec.to_json`: the
 #: scene's class by name, no module path), ``fingerprint`` the spec's own, and ``params``
 #: holds the numbers the episodes ran with (λ, the auxiliary weight, the physics numbers),
@@ -227,8 +228,6 @@ def images_meta(modes=(), size: int | None = None, camera=None) -> dict:
 def header(env, generator: dict, images: dict | None = None) -> dict:
     """The file attributes of a new file for ``env`` (a :class:`dax_tasks.Env` built by
     ``dax_tasks.make``); ``images`` from :func:`images_meta` (default: none)."""
-    import inspect
-
     spec = env.spec
     scene_doc = inspect.getdoc(type(spec.scene)) if spec.scene is not None else ""
     return {
@@ -250,10 +249,8 @@ def header(env, generator: dict, images: dict | None = None) -> dict:
 def spec_from_meta(meta: dict):
     """The :class:`dax_tasks.TaskSpec` a file was recorded with. Version 1 files stored
     ``lam``/``aux_reward`` in the spec and the scene's class by module path, and their
-    scenes had fields that are now params: those are dropped (they do not change the
-    scene's geometry)."""
-    import dataclasses as dc
-
+    scenes had fields that later versions keep in the params: those are dropped (they do
+    not change the scene's geometry)."""
     import dax_tasks
 
     data = dict(meta["spec"])
@@ -261,7 +258,7 @@ def spec_from_meta(meta: dict):
         for key in ("lam", "aux_reward", "scene_class"):
             data.pop(key, None)
         scene_type = type(dax_tasks.get_spec(meta["task"]).scene)
-        names = {f.name for f in dc.fields(scene_type)}
+        names = {f.name for f in dataclasses.fields(scene_type)}
         data["scene"] = {k: v for k, v in (data.get("scene") or {}).items() if k in names}
         return dax_tasks.TaskSpec.from_json(data, scene_type)
     return dax_tasks.spec_from_json(data)
@@ -277,8 +274,8 @@ def check_extendable(path, meta: dict) -> None:
 
 
 # ---------------------------------------------------------------------- writing
-#: HDF5 1.10 object formats (readable by HDF5 >= 1.10, 2016): compact chunk indexes, about
-#: 2.5x smaller files than the 1.8-compatible default for short episodes.
+#: HDF5 1.10 object formats (readable by HDF5 >= 1.10): compact chunk indexes, so a short
+#: episode's many small datasets take less room than with the 1.8-compatible default.
 LIBVER = ("v110", "v110")
 _COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True,
                 "fletcher32": True}
@@ -429,6 +426,29 @@ class DemoFile:
 
     def _check_schema(self) -> None:
         f = self._f
+        ver = self._check_version()
+        self.meta = meta = self._read_meta(ver)
+        if ver < CHECKSUMMED_SINCE:
+            warnings.warn(f"{self.path}: format version {ver}: /goal and the attributes "
+                          f"carry no checksum, so their corruption goes unnoticed (the goal is "
+                          f"unchecked; record the file again with this dax-data to check it)",
+                          UncheckedDataWarning, stacklevel=3)
+        self.image_modes = tuple(self._check_images(meta["images"]))
+        n_goal = self._check_goal()
+        names = self._episode_names()
+        dims = {"A": None, "O": None, "N": None}
+        for name in names:
+            dims = self._check_episode(name, dims, meta["images"].get("size"), n_goal)
+        self._names = names
+        if ver >= CHECKSUMMED_SINCE:
+            stored, computed = meta[CHECKSUM_ATTR], attrs_digest(f)
+            if stored != computed:
+                self._fail(f"metadata checksum mismatch: an attribute was changed or "
+                           f"corrupted (stored {stored[:19]}..., computed {computed[:19]}...)")
+
+    def _check_version(self) -> int:
+        """The file's format version, checked: a dax-data file of a version this reads."""
+        f = self._f
         fmt = f.attrs.get("format")
         if _text(fmt) != FORMAT_NAME:
             self._fail(f"not a dax-data demonstration file (format attribute {fmt!r})")
@@ -441,11 +461,16 @@ class DemoFile:
                        f"(up to {FORMAT_VERSION}); upgrade dax-data")
         if ver not in VERSION_ATTRS:
             self._fail(f"invalid format version {ver}")
+        return ver
+
+    def _read_meta(self, ver: int) -> dict:
+        """The file attributes of version ``ver``, JSON ones parsed; every one must be
+        there."""
         meta = {}
         for key in FILE_ATTRS + VERSION_ATTRS[ver]:
-            if key not in f.attrs:
+            if key not in self._f.attrs:
                 self._fail(f"missing file attribute {key!r}")
-            value = f.attrs[key]
+            value = self._f.attrs[key]
             if key in JSON_ATTRS:
                 try:
                     value = json.loads(_text(value))
@@ -457,18 +482,21 @@ class DemoFile:
                 value = _text(value)
             meta[key] = value
         meta.setdefault("images", images_meta())  # versions 1 and 2 hold no images
-        self.meta = meta
-        if ver < CHECKSUMMED_SINCE:
-            warnings.warn(f"{self.path}: format version {ver}: /goal and the attributes "
-                          f"carry no checksum, so their corruption goes unnoticed (the goal is "
-                          f"unchecked; record the file again with this dax-data to check it)",
-                          UncheckedDataWarning, stacklevel=3)
-        self.image_modes = tuple(self._check_images(meta["images"]))
+        return meta
+
+    def _check_goal(self) -> int:
+        """The number of goal points, after checking that ``/goal`` is an (N, 3) dataset."""
+        f = self._f
         if "goal" not in f or not isinstance(f["goal"], h5py.Dataset):
             self._fail("missing dataset /goal")
         goal = f["goal"]
         if goal.ndim != 2 or goal.shape[1] != 3:
             self._fail(f"/goal must have shape (N, 3), got {goal.shape}")
+        return goal.shape[0]
+
+    def _episode_names(self) -> list:
+        """The episode groups' names, checked to be numbered from 000000 without gaps."""
+        f = self._f
         if "episodes" not in f or not isinstance(f["episodes"], h5py.Group):
             self._fail("missing group /episodes")
         names = sorted(f["episodes"].keys())
@@ -476,48 +504,48 @@ class DemoFile:
         if names != expected:
             self._fail(f"episode groups must be numbered 000000.. without gaps, got "
                        f"{names[:5]}{'...' if len(names) > 5 else ''}")
-        obs_dim = act_dim = n_points = None
-        for name in names:
-            g = f["episodes"][name]
-            where = f"episode {int(name)}"
-            if not isinstance(g, h5py.Group):
-                self._fail(f"{where} is not a group")
-            for key in EPISODE_ATTRS:
-                if key not in g.attrs:
-                    self._fail(f"{where}: missing attribute {key!r}")
-            sizes = {"T": int(g.attrs["length"]), "A": act_dim, "O": obs_dim, "N": n_points,
-                     "S": meta["images"].get("size")}
-            for key, (dtype, dims) in self._datasets().items():
-                if key not in g or not isinstance(g[key], h5py.Dataset):
-                    self._fail(f"{where}: missing dataset {key!r}")
-                ds = g[key]
-                if ds.dtype != np.dtype(dtype):
-                    self._fail(f"{where}: dataset {key!r} has dtype {ds.dtype}, "
-                               f"expected {dtype}")
-                if ds.ndim != len(dims):
-                    self._fail(f"{where}: dataset {key!r} has {ds.ndim} dimensions, "
-                               f"expected {len(dims)} {dims}")
-                for size, dim in zip(ds.shape, dims, strict=True):
-                    want = dim
-                    if isinstance(dim, str):
-                        base = dim.removesuffix("+1")
-                        plus = 1 if dim.endswith("+1") else 0
-                        if sizes.get(base) is None:
-                            sizes[base] = size - plus
-                        want = sizes[base] + plus
-                    if size != want:
-                        self._fail(f"{where}: dataset {key!r} has shape {ds.shape}, "
-                                   f"expected {dims} with {sizes}")
-            if sizes["N"] != goal.shape[0]:
-                self._fail(f"{where}: {sizes['N']} object points but the goal has "
-                           f"{goal.shape[0]}")
-            act_dim, obs_dim, n_points = sizes["A"], sizes["O"], sizes["N"]
-        self._names = names
-        if ver >= CHECKSUMMED_SINCE:
-            stored, computed = meta[CHECKSUM_ATTR], attrs_digest(f)
-            if stored != computed:
-                self._fail(f"metadata checksum mismatch: an attribute was changed or "
-                           f"corrupted (stored {stored[:19]}..., computed {computed[:19]}...)")
+        return names
+
+    def _check_episode(self, name: str, dims: dict, image_size, n_goal: int) -> dict:
+        """Check episode group ``name``: its attributes and every dataset's dtype and shape,
+        the sizes named in :data:`EPISODE_DATASETS` agreeing within the episode, with the
+        earlier episodes' ``dims`` (A, O, N: ``None`` before the first) and with the goal's
+        ``n_goal`` points. Returns the episode's A, O and N."""
+        g = self._f["episodes"][name]
+        where = f"episode {int(name)}"
+        if not isinstance(g, h5py.Group):
+            self._fail(f"{where} is not a group")
+        for key in EPISODE_ATTRS:
+            if key not in g.attrs:
+                self._fail(f"{where}: missing attribute {key!r}")
+        sizes = {"T": int(g.attrs["length"]), **dims, "S": image_size}
+        for key, (dtype, shape) in self._datasets().items():
+            if key not in g or not isinstance(g[key], h5py.Dataset):
+                self._fail(f"{where}: missing dataset {key!r}")
+            self._check_dataset(where, key, g[key], dtype, shape, sizes)
+        if sizes["N"] != n_goal:
+            self._fail(f"{where}: {sizes['N']} object points but the goal has {n_goal}")
+        return {k: sizes[k] for k in dims}
+
+    def _check_dataset(self, where: str, key: str, ds, dtype, dims, sizes: dict) -> None:
+        """``ds`` has ``dtype`` and the shape ``dims`` names; a named size seen first here
+        is recorded in ``sizes`` (``"T+1"``: one more than T)."""
+        if ds.dtype != np.dtype(dtype):
+            self._fail(f"{where}: dataset {key!r} has dtype {ds.dtype}, expected {dtype}")
+        if ds.ndim != len(dims):
+            self._fail(f"{where}: dataset {key!r} has {ds.ndim} dimensions, "
+                       f"expected {len(dims)} {dims}")
+        for size, dim in zip(ds.shape, dims, strict=True):
+            want = dim
+            if isinstance(dim, str):
+                base = dim.removesuffix("+1")
+                plus = 1 if dim.endswith("+1") else 0
+                if sizes.get(base) is None:
+                    sizes[base] = size - plus
+                want = sizes[base] + plus
+            if size != want:
+                self._fail(f"{where}: dataset {key!r} has shape {ds.shape}, "
+                           f"expected {dims} with {sizes}")
 
     def _check_images(self, images) -> list:
         """The image modes of a valid ``images`` attribute (see :func:`images_meta`)."""

@@ -3,10 +3,15 @@
 ``dax-data export FILE --format minari --out DIR [--dataset-id ID]`` writes the dataset
 under ``DIR`` (Minari's ``MINARI_DATASETS_PATH``); load it with::
 
-    import os, minari, dax_tasks  # gymnasium's import then registers the dax/... ids
+    import os, minari
     os.environ["MINARI_DATASETS_PATH"] = DIR
     ds = minari.load_dataset("dax/fold_cloth1/expert-v0")
-    env = ds.recover_environment()  # gymnasium.make("dax/FoldCloth1-v0")
+    env = ds.recover_environment()  # a dax/FoldCloth1-v0 environment
+
+The dataset stores the Gymnasium id's whole :class:`gymnasium.envs.registration.EnvSpec`,
+whose entry point is the string ``"dax_tasks.gym:DaxEnv"``, so ``recover_environment()``
+imports dax-tasks' adapter itself: it works in a fresh process with nothing imported first
+(dax-tasks with its ``gym`` extra must be installed).
 
 Each episode carries the file's observations (T + 1 of them, the reset observation first),
 actions, rewards (the task reward the file recorded), ``terminations`` all false and
@@ -53,32 +58,10 @@ def export_minari(path, out_dir, dataset_id: str | None = None) -> Path:
     from dax_tasks.gym import GYM_IDS
 
     path = Path(path)
-    with ff.DemoFile(path) as f:
-        meta = f.meta
-        gen = meta["generator"]
-        task = meta["task"]
-        if gen.get("overrides"):
-            raise ff.DataFileError(
-                f"{path}: recorded with task overrides {gen['overrides']}; the Minari export "
-                f"needs the default task spec (the dataset names the Gymnasium id "
-                f"{GYM_IDS.get(task)}, whose environment must match the data)")
-        episodes = list(f)
-    if not episodes:
-        raise ff.DataFileError(f"{path}: holds no episodes to export")
-    policy = gen.get("policy", "expert")
+    meta, episodes = _exportable(path, GYM_IDS)
+    task, policy = meta["task"], meta["generator"].get("policy", "expert")
     dataset_id = dataset_id or default_dataset_id(task, policy)
-
-    buffers = []
-    for ep in episodes:
-        T = ep.length
-        trunc = np.zeros(T, bool)
-        trunc[-1] = True
-        buffers.append(EpisodeBuffer(
-            id=ep.index, observations=np.asarray(ep.observations, np.float32),
-            actions=np.asarray(ep.actions, np.float32),
-            rewards=np.asarray(ep.rewards, np.float64).reshape(T),
-            terminations=np.zeros(T, bool), truncations=trunc))
-
+    buffers = [EpisodeBuffer(**_episode_arrays(ep)) for ep in episodes]
     out_dir = Path(out_dir).resolve()
     final = out_dir.joinpath(*dataset_id.split("/"))
     if final.exists():
@@ -111,6 +94,35 @@ def export_minari(path, out_dir, dataset_id: str | None = None) -> Path:
             os.environ.pop("MINARI_DATASETS_PATH", None)
         else:
             os.environ["MINARI_DATASETS_PATH"] = old
+
+
+def _exportable(path: Path, gym_ids: dict):
+    """``(meta, episodes)`` of file ``path``; ``DataFileError`` if it was recorded with task
+    overrides (no Gymnasium id names its env) or holds no episode."""
+    with ff.DemoFile(path) as f:
+        meta = f.meta
+        overrides = meta["generator"].get("overrides")
+        if overrides:
+            raise ff.DataFileError(
+                f"{path}: recorded with task overrides {overrides}; the Minari export "
+                f"needs the default task spec (the dataset names the Gymnasium id "
+                f"{gym_ids.get(meta['task'])}, whose environment must match the data)")
+        episodes = list(f)
+    if not episodes:
+        raise ff.DataFileError(f"{path}: holds no episodes to export")
+    return meta, episodes
+
+
+def _episode_arrays(ep) -> dict:
+    """The arrays of a Minari episode buffer for episode ``ep``: T + 1 observations, T
+    actions and rewards, no termination and a truncation at the last step."""
+    T = ep.length
+    trunc = np.zeros(T, bool)
+    trunc[-1] = True
+    return dict(id=ep.index, observations=np.asarray(ep.observations, np.float32),
+                actions=np.asarray(ep.actions, np.float32),
+                rewards=np.asarray(ep.rewards, np.float64).reshape(T),
+                terminations=np.zeros(T, bool), truncations=trunc)
 
 
 def _merge(src: Path, dst: Path) -> None:

@@ -7,12 +7,12 @@
 
 with ``params = env.default_params`` (an :class:`EnvParams` pytree: goal, λ, auxiliary
 weight, the task's physics numbers) when omitted. ``dax_tasks.TASKS`` lists the nine
-benchmark names.
+benchmark names; :func:`register` adds a task of your own under a name ``make`` builds.
 
 Subpackages by role: :mod:`dax_tasks.core` (the env, spec, params, rewards, registry,
-wrappers, checks, goal files, sharding), :mod:`dax_tasks.tasks` (the nine tasks),
-:mod:`dax_tasks.viz` (pictures); :mod:`dax_tasks.io` writes files atomically under a lock;
-:mod:`dax_tasks.gym` registers the Gymnasium ids when imported
+wrappers, checks, goal files, sharding), :mod:`dax_tasks.tasks` (the nine tasks, registered
+on import), :mod:`dax_tasks.viz` (pictures); :mod:`dax_tasks.io` writes files atomically
+under a lock; :mod:`dax_tasks.gym` registers the Gymnasium ids when imported
 (``gymnasium.make("dax_tasks.gym:dax/FoldCloth1-v0")`` imports it for you).
 """
 
@@ -21,7 +21,6 @@ from importlib.metadata import PackageNotFoundError, version
 from . import core, io, tasks, viz
 from .core import (
     RESOLUTIONS,
-    TASKS,
     AutoReset,
     Box,
     Env,
@@ -41,10 +40,12 @@ from .core import (
     ground_truth_reward,
     l2_correspondence,
     make,
+    register,
     shard_batch,
     spec_from_json,
     training_env,
 )
+from .tasks import TASKS
 
 try:
     __version__: str = version("dax-tasks")
@@ -56,5 +57,5 @@ __all__ = [
     "EpisodeStatistics", "GoalFileError", "ObservationMode", "TaskSpec", "VmapWrapper",
     "__version__", "auxiliary_reward", "available", "chamfer", "check_overrides", "core",
     "env_class", "get_spec", "ground_truth_reward", "io", "l2_correspondence", "make",
-    "shard_batch", "spec_from_json", "tasks", "training_env", "viz",
+    "register", "shard_batch", "spec_from_json", "tasks", "training_env", "viz",
 ]

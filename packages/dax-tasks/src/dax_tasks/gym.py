@@ -4,16 +4,24 @@
     dax/PourWater-v0  dax/PourSoup-v0  dax/PushRope-v0  dax/WhipRope-v0  dax/FoldCloth1-v0
     dax/FoldCloth3-v0  dax/FoldTShirt-v0  dax/UnfoldCloth1-v0  dax/UnfoldCloth3-v0
 
-This is the only module of dax-tasks that imports gymnasium (the ``gym`` extra). The ids are
-registered when gymnasium is imported, whether before or after ``import dax_tasks`` (see
-``dax_tasks._register_gym_ids``), or by importing this module.
+This is the only module of dax-tasks that imports gymnasium (the ``gym`` extra), and
+importing it registers the nine ids (``import dax_tasks`` alone does not import gymnasium
+and registers nothing with it). Either import it first or let Gymnasium import it through
+the id's module prefix, as Gymnasium documents for ``"module:id"``::
 
-``gymnasium.make("dax/FoldCloth1-v0", **kwargs)`` and ``gymnasium.make_vec(id, num_envs=B,
-vectorization_mode="vector_entry_point", **kwargs)``: ``seed`` (the first reset's seed when
-``reset`` gets none), ``obs_mode`` and ``image_size`` (:class:`dax_tasks.core.wrappers.
-ObservationMode`: ``state``, ``particles``, ``height``, ``rgb``, ``rgbd``) and every other
-``kwarg`` but ``render_mode`` go to :func:`dax_tasks.make` (``goal_path``, spec overrides,
-``lam``, ``aux_weight``).
+    env = gymnasium.make("dax_tasks.gym:dax/FoldCloth1-v0", seed=0)
+    venv = gymnasium.make_vec("dax_tasks.gym:dax/FoldCloth1-v0", num_envs=8,
+                              vectorization_mode="vector_entry_point")
+
+The registered entry points are strings (``"dax_tasks.gym:DaxEnv"``), so an
+:class:`gymnasium.envs.registration.EnvSpec` saved elsewhere (a Minari dataset's) makes its
+environment in a fresh process without any import first.
+
+``make``'s keyword arguments: ``seed`` (the first reset's seed when ``reset`` gets none),
+``obs_mode`` and ``image_size`` (:class:`dax_tasks.core.wrappers.ObservationMode`:
+``state``, ``particles``, ``height``, ``rgb``, ``rgbd``) and every other ``kwarg`` but
+``render_mode`` go to :func:`dax_tasks.make` (``goal_path``, spec overrides, ``lam``,
+``aux_weight``).
 
 Semantics. Observations are NumPy arrays of the observation space's dtype (float32, or
 uint8 for ``rgb``); ``reward`` is the task's reward (``r_gt``, plus ``aux_weight * r_aux``);
@@ -45,7 +53,7 @@ from gymnasium.vector import AutoresetMode
 
 from . import viz as _viz
 from .core.checks import check_action
-from .core.registry import TASKS, make
+from .core.registry import make
 from .core.wrappers import VmapWrapper
 
 #: Gymnasium id of each task.
@@ -60,7 +68,6 @@ GYM_IDS = {
     "unfold_cloth1": "dax/UnfoldCloth1-v0",
     "unfold_cloth3": "dax/UnfoldCloth3-v0",
 }
-assert set(GYM_IDS) == set(TASKS)
 
 RENDER_RES = 256
 
@@ -212,7 +219,7 @@ class DaxVectorEnv(_Adapter, gymnasium.vector.VectorEnv):
 
 
 def register_all() -> None:
-    """Register the nine Gymnasium ids (idempotent)."""
+    """Register the nine Gymnasium ids (idempotent; run when this module is imported)."""
     for name, env_id in GYM_IDS.items():
         if env_id in gymnasium.registry:
             continue

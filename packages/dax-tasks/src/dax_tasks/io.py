@@ -143,6 +143,20 @@ def exclusive(path: str | os.PathLike, wait: float = 0.0, program: str | None = 
     if fcntl is None:  # pragma: no cover
         yield lock
         return
+    fd = _acquire(path, lock, wait, poll)
+    try:
+        _record_holder(fd, program)
+        yield lock
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)  # while still holding it (see _acquire)
+        os.close(fd)
+
+
+def _acquire(path: Path, lock: Path, wait: float, poll: float) -> int:
+    """An open descriptor of ``lock`` (the current lock file of ``path``) holding its
+    ``flock``; :class:`FileLockedError` if another process still holds it after ``wait``
+    seconds (tried every ``poll`` seconds)."""
     deadline = time.monotonic() + wait
     while True:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
@@ -173,17 +187,16 @@ def exclusive(path: str | os.PathLike, wait: float = 0.0, program: str | None = 
         except FileNotFoundError:
             current = False
         if current:
-            break
+            return fd
         os.close(fd)
-    try:
-        info = {"pid": os.getpid(), "host": socket.gethostname(),
-                "program": program or " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:200],
-                "since": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                    timespec="seconds")}
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, json.dumps(info).encode(), 0)
-        yield lock
-    finally:
-        with contextlib.suppress(OSError):
-            os.unlink(lock)  # while still holding it (see above)
-        os.close(fd)
+
+
+def _record_holder(fd: int, program: str | None) -> None:
+    """Write who holds the lock (pid, host, ``program`` or the command line, start time)
+    into the lock file ``fd``, as JSON."""
+    info = {"pid": os.getpid(), "host": socket.gethostname(),
+            "program": program or " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])[:200],
+            "since": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                timespec="seconds")}
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, json.dumps(info).encode(), 0)

@@ -1,22 +1,15 @@
-"""Several processes (hosts) running one sharded batch.
+"""Several processes (hosts) running one sharded batch: the library side of
+``jax.distributed``.
 
-Start the same command on every host, each with its own ``--process-id``::
-
-    python -m dax_tasks.core.distributed --coordinator HOST:PORT --num-processes N \\
-        --process-id I [--task fold_cloth1] [--batch 8] [--steps 3] [--seed 0] \\
-        [--set substeps=12 --set scene.n=4 ...] [--out result.json]
-
-Each process calls :func:`initialize` (:func:`jax.distributed.initialize`; on CPU the
+Every process calls :func:`initialize` (:func:`jax.distributed.initialize`; on CPU the
 processes talk over Gloo, JAX's default CPU collectives) before anything else touches
 JAX. After it ``jax.devices()`` lists every process's devices, so
 :func:`dax_tasks.core.sharding.batch_mesh` spans them all and the vectorised env splits its
-batch over every host with no other change. :func:`rollout_gradient` is the job: a batch
-of rollouts of one task with random actions, forward and backward (the gradient of the
-summed reward wrt every action), gathered so every process holds the whole result; the
-processes check they agree (:func:`jax.experimental.multihost_utils.assert_equal`) and
-each prints it as one JSON line (and writes it to ``--out``). Without ``--coordinator``
-it runs in this process alone, on its local devices: the reference the multi-process run
-is compared with (``tests/multidevice/test_distributed.py``).
+batch over every host with no other change. :func:`rollout_gradient` runs a batch of
+rollouts of one task with random actions forward and backward (the gradient of the summed
+reward wrt every action) and gathers the result so that every process holds all of it;
+:func:`digest` names such a result by its bytes. The command-line job that runs it on
+several hosts is ``python -m benchmarks.distributed`` (from the repository root).
 
 Every process must run the same program in the same order (JAX's multi-controller
 model); the batch size must be a multiple of the global device count for the batch to be
@@ -26,17 +19,15 @@ one process (each would otherwise compute the whole batch).
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import hashlib
-import json
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 
 from .sharding import is_sharded, shard_batch
+from .wrappers import VmapWrapper
 
 
 def _check_address(coordinator: str) -> None:
@@ -67,8 +58,6 @@ def rollout_gradient_fn(env, batch: int, steps: int):
     """The jitted job of :func:`rollout_gradient`: ``job(key) -> dict`` of global arrays
     (split over every device of every process), for benchmarks that compile and time it
     apart (``benchmarks/scaling.py``)."""
-    from .wrappers import VmapWrapper
-
     for name, value in (("batch", batch), ("steps", steps)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive int, got {value!r}")
@@ -109,8 +98,6 @@ def rollout_gradient(env, batch: int, steps: int, seed: int = 0) -> dict:
     process holds whole: ``return`` (the summed reward of the batch), ``rewards``
     (batch, steps), ``final_r_gt`` (batch,) and ``grad`` (batch, steps, action_dim), the
     gradient of ``return`` wrt the actions."""
-    from jax.experimental import multihost_utils
-
     out = rollout_gradient_fn(env, batch, steps)(jax.random.PRNGKey(seed))
     out = multihost_utils.process_allgather(out, tiled=True)
     return {k: np.asarray(v) for k, v in out.items()}
@@ -124,83 +111,3 @@ def digest(result: dict) -> str:
         h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()
-
-
-def _parse_sets(task: str, sets: list[str]) -> dict:
-    """``KEY=VALUE`` (a TaskSpec field, or ``scene.FIELD``) -> ``make`` overrides; VALUE is
-    JSON (``12``, ``0.5``, ``[1, 2]``, ``true``) or else a string."""
-    from .registry import get_spec
-    from .spec import checked_fields
-
-    top, scene = {}, {}
-    for item in sets:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--set takes KEY=VALUE, got {item!r}")
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
-        if key.startswith("scene."):
-            scene[key[len("scene."):]] = value
-        else:
-            top[key] = value
-    if scene:
-        default = get_spec(task).scene
-        top["scene"] = dataclasses.replace(default,
-                                           **checked_fields(default, scene, "scene."))
-    return top
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m dax_tasks.core.distributed",
-                                description=__doc__.split("\n\n")[0])
-    p.add_argument("--coordinator", help="HOST:PORT of process 0 (omit: one process)")
-    p.add_argument("--num-processes", type=int, default=1)
-    p.add_argument("--process-id", type=int, default=0)
-    p.add_argument("--timeout", type=int, default=120,
-                   help="seconds to wait for the other processes")
-    p.add_argument("--task", default="fold_cloth1")
-    p.add_argument("--batch", type=int, default=8)
-    p.add_argument("--steps", type=int, default=3)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="a make() override: a TaskSpec field or scene.FIELD (repeatable)")
-    p.add_argument("--no-goal-cache", action="store_true",
-                   help="compute the goal instead of reading or writing the goal cache")
-    p.add_argument("--out", help="also write the JSON result here")
-    args = p.parse_args(argv)
-    try:
-        if args.coordinator is not None:
-            initialize(args.coordinator, args.num_processes, args.process_id, args.timeout)
-        elif args.num_processes != 1 or args.process_id != 0:
-            raise ValueError("--num-processes / --process-id need --coordinator")
-        from .registry import make
-
-        env = make(args.task, cache_goal=not args.no_goal_cache,
-                   **_parse_sets(args.task, args.set))
-        result = rollout_gradient(env, args.batch, args.steps, args.seed)
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
-
-        multihost_utils.assert_equal(result, "the processes' gathered results differ")
-    record = {"process_id": jax.process_index(), "process_count": jax.process_count(),
-              "device_count": jax.device_count(),
-              "local_device_count": jax.local_device_count(), "task": args.task,
-              "batch": args.batch, "steps": args.steps, "seed": args.seed,
-              "digest": digest(result),
-              **{k: v.tolist() for k, v in result.items()}}
-    line = json.dumps(record)
-    print(line, flush=True)
-    if args.out:
-        from ..io import atomic_write
-
-        atomic_write(args.out, line + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

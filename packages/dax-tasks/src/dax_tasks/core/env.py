@@ -51,7 +51,7 @@ class EnvParams:
         reward.
     physics: the task's physics numbers (for the MPM tasks a
         :class:`dax_physics.MaterialParams` with the colliders' friction; for the cloth
-        tasks a :class:`dax_tasks.tasks.cloth.ClothParams`).
+        tasks their ``ClothParams``).
 
     ``replace(**changes)`` casts the new values of ``goal``, ``lam`` and ``aux_weight`` to
     the old ones' dtype, so ``params.replace(lam=5.0)`` does not retrace a jitted step.

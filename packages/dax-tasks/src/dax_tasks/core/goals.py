@@ -93,6 +93,34 @@ def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None,
     made for another spec or by other code: refused, or only warned about with
     ``allow_mismatch``). Raises :class:`GoalFileError` naming the file and the problem."""
     path = Path(path)
+    pts, text = _read_goal_file(path)
+    prov = None
+    if text.shape == () and text.dtype.kind == "U":
+        try:
+            prov = json.loads(str(text))
+        except ValueError:
+            prov = None
+    if not isinstance(prov, dict):
+        raise GoalFileError(f"{path}: 'provenance' must be a JSON object (text), got a "
+                            f"{text.dtype} array of shape {text.shape}")
+    if pts.dtype.kind not in "fiu":  # complex points lost their imaginary part silently
+        raise GoalFileError(f"{path}: goal points must be real numbers, got dtype {pts.dtype}")
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise GoalFileError(f"{path}: goal points must have shape (N, 3), got {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise GoalFileError(f"{path}: goal points contain NaN or inf")
+    if n_points is not None and pts.shape[0] != n_points:
+        raise GoalFileError(f"{path}: goal has {pts.shape[0]} points but the task's object "
+                            f"has {n_points} (made for another scene resolution?)")
+    if spec is not None:
+        _check_made_for(path, prov, spec, allow_mismatch)
+    return pts.astype(np.float32), prov
+
+
+def _read_goal_file(path: Path):
+    """``(points, provenance text)`` as stored in goal file ``path`` (the text ``"{}"``
+    when it has none); :class:`GoalFileError` if it is missing, unreadable, not an
+    ``.npz`` archive or holds no ``points``."""
     if not path.is_file():
         raise GoalFileError(f"{path}: goal file not found")
     try:
@@ -114,38 +142,25 @@ def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None,
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
         raise GoalFileError(f"{path}: unreadable or truncated goal file ({err})") from None
-    prov = None
-    if text.shape == () and text.dtype.kind == "U":
-        try:
-            prov = json.loads(str(text))
-        except ValueError:
-            prov = None
-    if not isinstance(prov, dict):
-        raise GoalFileError(f"{path}: 'provenance' must be a JSON object (text), got a "
-                            f"{text.dtype} array of shape {text.shape}")
-    if pts.dtype.kind not in "fiu":  # complex points lost their imaginary part silently
-        raise GoalFileError(f"{path}: goal points must be real numbers, got dtype {pts.dtype}")
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise GoalFileError(f"{path}: goal points must have shape (N, 3), got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise GoalFileError(f"{path}: goal points contain NaN or inf")
-    if n_points is not None and pts.shape[0] != n_points:
-        raise GoalFileError(f"{path}: goal has {pts.shape[0]} points but the task's object "
-                            f"has {n_points} (made for another scene resolution?)")
-    if spec is not None:
-        if prov.get("task", spec.name) != spec.name:
-            raise GoalFileError(f"{path}: goal of task {prov['task']!r}, not {spec.name!r}")
-        made_for, fp = prov.get("fingerprint"), spec.fingerprint()
-        if made_for != fp:
-            what = (f"made for fingerprint {made_for}" if made_for is not None
-                    else "its provenance names no fingerprint")
-            problem = (f"{path}: goal {what}, not this task's {fp} (another spec of "
-                       f"{spec.name} or other dax-tasks/dax-physics code)")
-            if not allow_mismatch:
-                raise GoalFileError(f"{problem}; pass allow_goal_mismatch=True to "
-                                    f"dax_tasks.make to use it anyway")
-            warnings.warn(f"using a mismatched goal: {problem}", stacklevel=3)
-    return pts.astype(np.float32), prov
+    return pts, text
+
+
+def _check_made_for(path: Path, prov: dict, spec, allow_mismatch: bool) -> None:
+    """:class:`GoalFileError` unless provenance ``prov`` names ``spec``'s task and its
+    fingerprint (a mismatched fingerprint only warns with ``allow_mismatch``)."""
+    if prov.get("task", spec.name) != spec.name:
+        raise GoalFileError(f"{path}: goal of task {prov['task']!r}, not {spec.name!r}")
+    made_for, fp = prov.get("fingerprint"), spec.fingerprint()
+    if made_for == fp:
+        return
+    what = (f"made for fingerprint {made_for}" if made_for is not None
+            else "its provenance names no fingerprint")
+    problem = (f"{path}: goal {what}, not this task's {fp} (another spec of "
+               f"{spec.name} or other dax-tasks/dax-physics code)")
+    if not allow_mismatch:
+        raise GoalFileError(f"{problem}; pass allow_goal_mismatch=True to "
+                            f"dax_tasks.make to use it anyway")
+    warnings.warn(f"using a mismatched goal: {problem}", stacklevel=4)
 
 
 def compute_goal(env):

@@ -1,36 +1,32 @@
-"""The task registry: ``TASKS``, ``get_spec(name)`` and the entry point ``make(name, ...)``."""
+"""The task registry and ``make``: task names -> the :class:`Env` subclass that implements
+each and its default :class:`TaskSpec`.
+
+A task is registered once, by name, with :func:`register`: its env class, its default spec
+and optionally its spec at the original benchmark's resolution (``resolution=
+"reference"``). Each is the object itself or a ``"module:attribute"`` string (Gymnasium's
+entry-point convention) that is imported the first time the task is used, so registering
+imports nothing. :mod:`dax_tasks.tasks` registers the nine benchmark tasks when
+``dax_tasks`` is imported; a user's own task is registered the same way and is then built
+by :func:`make` like them::
+
+    dax_tasks.register("nudge_block", Nudge, spec)
+    env = dax_tasks.make("nudge_block", horizon=2)
+
+This module names no task and imports no task module: it holds what was registered.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
-from types import MappingProxyType
 
 import numpy as np
 
 from . import goals
+from .checks import check_params
 from .env import Env, EnvParams
-from .spec import TaskSpec
-
-#: The nine benchmark tasks, in the literature's order.
-TASKS = (
-    "pour_water", "pour_soup", "push_rope", "whip_rope", "fold_cloth1", "fold_cloth3",
-    "fold_tshirt", "unfold_cloth1", "unfold_cloth3",
-)
-
-# Where each task lives: name -> (module, Env subclass, default TaskSpec attribute).
-# Imported on first use.
-_MODULES = MappingProxyType({
-    "pour_water": ("dax_tasks.tasks.pour", "Pour", "POUR_WATER"),
-    "pour_soup": ("dax_tasks.tasks.pour", "Pour", "POUR_SOUP"),
-    "push_rope": ("dax_tasks.tasks.push_rope", "PushRope", "PUSH_ROPE"),
-    "whip_rope": ("dax_tasks.tasks.whip_rope", "WhipRope", "WHIP_ROPE"),
-    "fold_cloth1": ("dax_tasks.tasks.cloth", "ClothTask", "FOLD_CLOTH1"),
-    "fold_cloth3": ("dax_tasks.tasks.cloth", "ClothTask", "FOLD_CLOTH3"),
-    "fold_tshirt": ("dax_tasks.tasks.cloth", "ClothTask", "FOLD_TSHIRT"),
-    "unfold_cloth1": ("dax_tasks.tasks.cloth", "ClothTask", "UNFOLD_CLOTH1"),
-    "unfold_cloth3": ("dax_tasks.tasks.cloth", "ClothTask", "UNFOLD_CLOTH3"),
-})
+from .spec import TaskSpec, checked_fields
+from .wrappers import ObservationMode
 
 #: The :class:`EnvParams` fields ``make`` accepts as overrides of the default params.
 PARAM_OVERRIDES = ("lam", "aux_weight")
@@ -42,43 +38,92 @@ PARAM_OVERRIDES = ("lam", "aux_weight")
 RESOLUTIONS = ("default", "reference")
 
 
-def _implemented(name: str) -> bool:
-    module, cls, attr = _MODULES[name]
-    try:
-        mod = importlib.import_module(module)
-    except ModuleNotFoundError as err:
-        if err.name != module:  # the task module exists but one of its imports does not
-            raise
-        return False
-    return hasattr(mod, cls) and hasattr(mod, attr)
+@dataclasses.dataclass(frozen=True)
+class TaskEntry:
+    """One registered task. ``env``, ``spec`` and ``reference`` are the objects or
+    ``"module:attribute"`` strings given to :func:`register`; ``reference`` is ``None``
+    for a task without a reference resolution."""
+
+    name: str
+    env: type[Env] | str
+    spec: TaskSpec | str
+    reference: TaskSpec | str | None = None
+
+
+_REGISTRY: dict[str, TaskEntry] = {}
+
+
+def _check_target(name: str, what: str, target, kind: type) -> None:
+    """``ValueError`` unless ``target`` is a ``"module:attribute"`` string or, for ``kind``
+    :class:`Env`, a subclass of it, else an instance of ``kind``."""
+    wanted = "an Env subclass" if kind is Env else f"a {kind.__name__}"
+    if isinstance(target, str):
+        module, sep, attr = target.partition(":")
+        ok = bool(module and sep and attr)
+    elif kind is Env:
+        ok = isinstance(target, type) and issubclass(target, Env)
+    else:
+        ok = isinstance(target, kind)
+    if not ok:
+        raise ValueError(f"task {name!r}: {what} must be {wanted} or a 'module:attribute' "
+                         f"string, got {type(target).__name__} {target!r}")
+
+
+def register(name: str, env: type[Env] | str, spec: TaskSpec | str,
+             reference: TaskSpec | str | None = None, replace: bool = False) -> None:
+    """Register task ``name``: ``env`` its :class:`Env` subclass, ``spec`` its default
+    :class:`TaskSpec` (named ``name``), ``reference`` its spec at ``resolution=
+    "reference"`` (optional). Each may be a ``"module:attribute"`` string, imported when
+    the task is first used. Registering the same entry again does nothing; another entry
+    under a registered name raises ``ValueError`` unless ``replace=True``."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"a task name must be a non-empty string, got {name!r}")
+    _check_target(name, "env", env, Env)
+    _check_target(name, "spec", spec, TaskSpec)
+    if reference is not None:
+        _check_target(name, "reference", reference, TaskSpec)
+    for what, value in (("spec", spec), ("reference", reference)):
+        if isinstance(value, TaskSpec) and value.name != name:
+            raise ValueError(f"task {name!r}: its {what} is named {value.name!r}")
+    entry = TaskEntry(name, env, spec, reference)
+    old = _REGISTRY.get(name)
+    if old is not None and old != entry and not replace:
+        raise ValueError(f"task {name!r} is already registered ({old.env}); pass "
+                         f"replace=True to register another task under its name")
+    _REGISTRY[name] = entry
 
 
 def available() -> tuple:
-    """The names of the tasks implemented in this version."""
-    return tuple(n for n in TASKS if _implemented(n))
+    """The names of the registered tasks, in the order they were registered (the nine
+    benchmark tasks first)."""
+    return tuple(_REGISTRY)
 
 
-def _entry(name: str):
-    if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}; valid names: {', '.join(TASKS)}")
-    if not _implemented(name):
-        raise NotImplementedError(
-            f"task {name!r} is declared but not implemented yet in dax-tasks; "
-            f"available now: {', '.join(available())}")
-    module, cls, attr = _MODULES[name]
-    mod = importlib.import_module(module)
-    return getattr(mod, cls), getattr(mod, attr)
+def _load(target):
+    """``target``, or the attribute a ``"module:attribute"`` string names (imported)."""
+    if not isinstance(target, str):
+        return target
+    module, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def _entry(name: str) -> TaskEntry:
+    entry = _REGISTRY.get(name) if isinstance(name, str) else None
+    if entry is None:
+        raise ValueError(f"unknown task {name!r}; registered: {', '.join(_REGISTRY)}")
+    return entry
 
 
 def get_spec(name: str, resolution: str = "default") -> TaskSpec:
     """The :class:`TaskSpec` of task ``name`` at ``resolution`` (:data:`RESOLUTIONS`)."""
     if resolution not in RESOLUTIONS:
         raise ValueError(f"unknown resolution {resolution!r}; valid: {', '.join(RESOLUTIONS)}")
-    spec = _entry(name)[1]
-    if resolution == "reference":
-        module, _, attr = _MODULES[name]
-        spec = getattr(importlib.import_module(module), f"{attr}_REFERENCE")
-    return spec
+    entry = _entry(name)
+    if resolution == "default":
+        return _load(entry.spec)
+    if entry.reference is None:
+        raise ValueError(f"task {name!r} has no reference resolution")
+    return _load(entry.reference)
 
 
 def spec_from_json(data: dict) -> TaskSpec:
@@ -90,7 +135,10 @@ def spec_from_json(data: dict) -> TaskSpec:
 
 def env_class(name: str) -> type[Env]:
     """The :class:`Env` subclass that implements task ``name``."""
-    return _entry(name)[0]
+    cls = _load(_entry(name).env)
+    if not (isinstance(cls, type) and issubclass(cls, Env)):
+        raise ValueError(f"task {name!r}: its env {cls!r} is not an Env subclass")
+    return cls
 
 
 def check_overrides(name: str, overrides: dict) -> dict:
@@ -100,9 +148,7 @@ def check_overrides(name: str, overrides: dict) -> dict:
     ``aux_weight`` as real numbers. ``ValueError`` naming the key and the value (an unknown
     key lists the valid ones); returns the overrides with ints made floats for float
     fields and lists made tuples."""
-    from .spec import checked_fields
-
-    default = _entry(name)[1]
+    default = get_spec(name)
     spec_fields = {f.name for f in dataclasses.fields(TaskSpec)} - {"name"}
     unknown = sorted(set(overrides) - spec_fields - set(PARAM_OVERRIDES))
     if unknown:
@@ -145,7 +191,7 @@ def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=Non
     Batching, auto-reset and episode statistics are wrappers the caller chooses
     (:mod:`dax_tasks.core.wrappers`); the Gymnasium ids are in :mod:`dax_tasks.gym`.
     """
-    cls, _ = _entry(name)
+    cls = env_class(name)
     base = get_spec(name, resolution)
     overrides = check_overrides(name, overrides)
     param_changes = {k: overrides.pop(k) for k in PARAM_OVERRIDES if k in overrides}
@@ -157,15 +203,11 @@ def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=Non
     if param_changes:
         env = env.with_default_params(_checked_params(env, param_changes))
     if obs_mode != "state":
-        from .wrappers import ObservationMode
-
         return ObservationMode(env, obs_mode, image_size)
     return env
 
 
 def _checked_params(env: Env, changes: dict) -> EnvParams:
-    from .checks import check_params
-
     params = env.default_params.replace(**changes)
     check_params(env, params)
     return params

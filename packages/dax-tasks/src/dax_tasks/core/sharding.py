@@ -23,8 +23,7 @@ arrays are placed with :func:`jax.device_put`. Under an outer ``vmap`` (e.g. the
 runner's seeds) the vmapped axis is left unconstrained, the env axis is still split.
 Element-wise work per env gives the same bits sharded or not; a reduction over the batch
 (a mean over envs, a top-k over a population) is computed per device and then combined,
-which may change the float summation order (see the package README for the measured
-differences).
+which may change the float summation order (the package README gives the differences).
 """
 
 from __future__ import annotations

@@ -25,6 +25,8 @@ from typing import Any
 import jax
 import numpy as np
 
+import dax_physics
+
 from . import rewards
 
 ACTION_KINDS = ("push", "pick_place", "velocity")
@@ -237,8 +239,6 @@ def code_digest() -> str:
     """SHA-256 of the Python sources of dax_tasks and dax_physics: a goal or demonstration
     computed by one version of the code is not reused by another (a changed fold or
     settling time changes the result without changing the spec)."""
-    import dax_physics
-
     h = hashlib.sha256()
     for package in (Path(__file__).parent, Path(dax_physics.__file__).parent):
         for src in sorted(package.rglob("*.py")):

@@ -16,6 +16,8 @@ import dax_physics.cloth as dc
 from dax_physics import pytree_dataclass
 from dax_physics.cloth import mesh as dmesh
 
+from ..core.env import replace_cast
+
 #: Default T-shirt outline [m] (see :func:`dax_physics.cloth.tshirt_outline`).
 TSHIRT_OUTLINE = (("width", 0.2), ("length", 0.25), ("sleeve", 0.08),
                   ("sleeve_width", 0.08), ("neck", 0.08), ("neck_depth", 0.02))
@@ -160,8 +162,6 @@ class ClothParams:
         return ClothParams(**{k: jnp.asarray(v, jnp.float32) for k, v in merged.items()})
 
     def replace(self, **changes) -> ClothParams:
-        from ..core.env import replace_cast
-
         return replace_cast(self, changes)
 
 
@@ -272,7 +272,7 @@ def pick_place(scene: ClothScene, substeps: int, cloth: dc.Cloth, state: dc.Clot
         return dc.step(cfg, cloth, s.replace(gripper_vel=v[None])), None
 
     # two scans: the grip is fixed in each, so the solver's grip arithmetic is hoisted out
-    # of the loop (one scan with a per-substep grip mask cost a third more at 529 vertices)
+    # of the loop (a per-substep grip mask would keep it inside)
     state, _ = jax.lax.scan(carry, state, vel)
     state = state.replace(grip=jnp.zeros_like(state.grip),
                           gripper_vel=jnp.zeros_like(state.gripper_vel))
@@ -354,11 +354,7 @@ def folded_vertices(scene: ClothScene, substeps: int) -> np.ndarray:
     check_scene(scene)
     plan = fold_plan(scene)
     with jax.ensure_compile_time_eval():
-        cloth = make_cloth(scene)
-        state = dc.ClothState.create(cloth, n_grippers=1)
-        step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
-        for index, place in plan:
-            state = step(state, plan_action(state.x, index, place))
+        state = _run_folds(scene, substeps, plan)
         if plan:
             state = jax.jit(lambda s: settle(scene, s, round(REST_TIME / scene.dt)))(state)
         return np.asarray(state.x, np.float32)
@@ -370,14 +366,19 @@ def fold_prefix_vertices(scene: ClothScene, substeps: int, n: int) -> np.ndarray
     cloth at the target pose, as an episode has it after step ``n`` (each fold's own settling
     only, no ``REST_TIME``; NumPy, computed once per scene)."""
     check_scene(scene)
-    plan = fold_plan(scene)[:n]
     with jax.ensure_compile_time_eval():
-        cloth = make_cloth(scene)
-        state = dc.ClothState.create(cloth, n_grippers=1)
-        step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
-        for index, place in plan:
-            state = step(state, plan_action(state.x, index, place))
-        return np.asarray(state.x, np.float32)
+        return np.asarray(_run_folds(scene, substeps, fold_plan(scene)[:n]).x, np.float32)
+
+
+def _run_folds(scene: ClothScene, substeps: int, plan) -> dc.ClothState:
+    """The flat cloth at the target pose after the pick-and-places of ``plan`` (fold index,
+    place point pairs), contact adjustment on, each jitted step run eagerly in turn."""
+    cloth = make_cloth(scene)
+    state = dc.ClothState.create(cloth, n_grippers=1)
+    step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
+    for index, place in plan:
+        state = step(state, plan_action(state.x, index, place))
+    return state
 
 
 def flat_vertices(scene: ClothScene) -> np.ndarray:

@@ -1,130 +1,98 @@
 """The cloth tasks: Fold-Cloth-1, Fold-Cloth-3, Fold-T-shirt, Unfold-Cloth-1, Unfold-Cloth-3.
 
-Scene (SI units, z up). One mass-spring cloth (:mod:`dax_physics.cloth`, general mesh
-path) on a table at z = 0 with Coulomb friction (static 1.0, dynamic 0.8) and
-self-collision. The square cloth is 0.3 m x 0.3 m with 11 x 11 vertices (3 cm spacing,
-union-jack triangulation); the T-shirt is a 0.2 m wide, 0.25 m long body with 8 cm sleeves
-on a 2.5 cm grid (:func:`dax_physics.cloth.tshirt_mesh`). Material (``params.physics``, a
+Scene (SI units, z up). One mass-spring cloth (:mod:`dax_physics.cloth`, mesh path) on a
+table at z = 0 with Coulomb friction (static 1.0, dynamic 0.8) and self-collision, and one
+gripper. The square cloth is 0.3 m x 0.3 m with 11 x 11 vertices (3 cm spacing,
+union-jack triangulation); the T-shirt a 0.2 m wide, 0.25 m long body with 8 cm sleeves on
+a 2.5 cm grid (:func:`dax_physics.cloth.tshirt_mesh`). Material (``params.physics``, a
 :class:`ClothParams`, so it can be changed, batched or differentiated without
 recompiling): 0.2 kg/m^2, stretch = shear 10 N/m, bend 0.5 N/m, dashpot 0.01 N s/m per
-spring; substep ``dt`` = 1 ms for the square cloth, 0.4 ms for the T-shirt (Gershgorin
-bounds with self-collision: 1.04 ms and 0.42 ms; checked when a task is built, and for
-other params by :func:`dax_tasks.core.checks.check_params`). One gripper. The canonical pose is
-the cloth centred on the table centre, the origin.
+spring. Substep ``dt`` = 1e-3 s (square) and 4e-4 s (T-shirt), under the stable bounds
+with self-collision (1.04e-3 s and 4.2e-4 s); checked when a task is built, and for other
+params by :func:`dax_tasks.core.checks.check_params`. The canonical pose is the cloth
+centred on the table centre, the origin.
 
-Self-collision (:data:`SQUARE_CONTACT`, :data:`TSHIRT_CONTACT`; ``ClothScene.thickness``
-etc.): vertex pairs closer than the thickness h repel with ``self_stiffness`` (h - d) and a
-viscous ``self_friction`` on their relative velocity; pairs closer than 2 h on the rest mesh
-never repel. On in all five tasks, since every fold stacks layers (one diagonal fold
-already lays half the cloth on the other). h is the mesh spacing (3 cm, T-shirt 2.5 cm):
-with vertex-vertex contact a smaller h lets a vertex of one layer sink through the middle
-of a triangle of the other (of the 49 vertices lying over the other layer after the
-diagonal fold, 55-60 % ended within 2 mm of its plane at h = 1.5-2 cm, none at h = 3 cm:
-the smallest gap was then 1.5 cm), so the folded layers lie about h apart, a thick cloth.
-Stiffness 0.5 N/m (T-shirt 0.2: a vertex squeezed between layers touches more than the
-two contacts the stability bound assumes, and at 0.5-1 N/m the T-shirt's sandwiched
-sleeve kept moving at 1-2 m/s after the folds) and friction 2e-3 N s/m (T-shirt 1e-3;
-without it the stacked layers never came to rest) are about the most the substeps above
-allow. The cost per env step is in the dax-tasks README's task table.
+Self-collision (:data:`SQUARE_CONTACT`, :data:`TSHIRT_CONTACT`), on in all five tasks:
+vertex pairs closer than the thickness h repel with ``self_stiffness`` (h - d) and a
+viscous ``self_friction`` on their relative velocity; pairs closer than 2 h on the rest
+mesh never repel. h is the mesh spacing (3 cm, T-shirt 2.5 cm), so folded layers lie about
+h apart (a thick cloth). Every vertex pair is tested (``ClothScene.self_search``).
 
-Initial state. Fold tasks: the flat cloth. Unfold tasks: the canonical folded cloth (the
-scripted fold below, simulated once per scene and cached). Either is then placed by a
-random rigid pose drawn from the seed: a heading uniform in ±pi (``rotation_range``) about
-the vertical axis through the table centre, then a shift in the table plane uniform over
-all the shifts that keep the rotated *flat* cloth inside the table region ±0.35 m
-(``table_half``; for an unfold task the cloth it unfolds into fits too). So the cloth lies
-anywhere on the table at any heading, wholly inside the gripper's reach: the square's
-centre within ±0.20 m at heading 0 and ±0.14 m at 45 degrees. Vertices keep their index, so
-they correspond across seeds and to the goal.
+Start, drawn from the key. Fold tasks: the flat cloth; unfold tasks: the canonical folded
+cloth (the scripted fold below, simulated once per scene and cached). Either is placed by a
+random rigid pose: a heading uniform in ±``rotation_range`` (pi) about the vertical axis
+through the table centre, then a shift uniform over all the shifts that keep the rotated
+*flat* cloth inside the table region ±``table_half`` (0.35 m; for an unfold task the cloth
+it unfolds into fits too), so the cloth lies anywhere on the table at any heading, inside
+the gripper's reach. Vertices keep their index: they correspond across seeds and to the
+goal.
 
-Goal (fixed per task and scene, a pure deterministic function of the spec; the template
-caches it on disk), in the canonical pose. Fold tasks: the end state of the canonical
-scripted fold of the flat cloth at the canonical pose (each fold picks one vertex and places
-it in the cloth's frame), followed by 0.5 s of free settling so the goal is at rest:
+Goal (fixed per task and scene; :func:`dax_tasks.make` caches it on disk), in the canonical
+pose. Fold tasks: the end state of the canonical scripted fold of the flat cloth (each fold
+picks one vertex and places it in the cloth's frame), followed by 0.5 s of free settling,
+so the goal is at rest:
 
-* Fold-Cloth-1: corner (-,-) onto 0.9 x the opposite corner (+,+): a diagonal fold into a
-  triangle;
-* Fold-Cloth-3: that, then corner (+,-) onto 0.9 x corner (-,+) (the triangle in half), then
-  corner (-,+) onto 0.9 x corner (+,+) (in half again);
+* Fold-Cloth-1: corner (-,-) onto 0.9 x the opposite corner (+,+): a triangle;
+* Fold-Cloth-3: that, then corner (+,-) onto 0.9 x corner (-,+) (the triangle in half),
+  then corner (-,+) onto 0.9 x corner (+,+) (in half again);
 * Fold-T-shirt: each sleeve tip mirrored across its body side (sleeves in), then the
   bottom-left hem corner and the top-left shoulder onto 0.9 x their mirror across the
-  vertical centre line (the shirt folded in half). Layers slide over each other with only
-  viscous friction, so the folded-in sleeves open part way while the cloth settles, and
-  the right one, caught between the halves, slides back out in the 0.5 s of settling (up
-  to 8.8 cm): the goal has it lying out, where it started.
+  vertical centre line (in half). A sleeve caught between the halves slides back out while
+  the cloth settles, and the goal has it so.
 
 Unfold tasks: the flat cloth.
 
-Distance and reward: the goal is a shape, not a place. A cloth folded as asked is
-folded wherever it lies, and one gripper cannot turn a cloth, so the goal is compared with
-the cloth where the cloth is: ``D`` = index-correspondence mean L2 [m] between the cloth's
-vertices and the goal's after the goal is moved by the rigid motion in the table plane
-(rotation about the vertical, shift) that best maps it onto the cloth (least squares, the
-closed-form 2-D Kabsch fit; :meth:`ClothTask.aligned_goal`). It is differentiable (the fit
-is smooth while the cloth is not a point), and a rigid motion of the cloth leaves D
-unchanged: moving the cloth around earns nothing, folding it does. λ = 10 /m, so ``r_gt
-= exp(-10 D)``. The flat square is 0.09 m from the Fold-Cloth-1 goal (r_gt 0.40) at any
-pose. (Before dax-tasks 0.2.0 the goal stayed at the canonical pose, D compared the cloth
-with it unaligned, and the start was within ±0.1 rad and ±1 cm of that pose.)
+Distance: the goal is a shape, not a place. ``D`` = index-correspondence mean L2 [m]
+between the cloth's vertices and the goal's after the goal is moved by the rigid motion in
+the table plane (rotation about the vertical, shift) that best maps it onto the cloth
+(least squares, the closed-form 2-D Kabsch fit; :meth:`ClothTask.aligned_goal`). D is
+differentiable while the cloth is not a point, and a rigid motion of the cloth leaves it
+unchanged: moving the cloth around earns nothing, folding it does. λ = 10 /m.
 
 Action: a pick-and-place macro ``(x, y, z, x', y', z')`` [m]: the gripper holds the
-vertices within ``grasp_radius`` x spacing (0.75 cm) of the pick point, carries them along an
-eased arc (cosine speed profile, height peaking at 0.5 x the table-plane travel) to the
-place point over ``substeps - settle_substeps`` substeps, releases them and the cloth
-settles for ``settle_substeps`` (default 400 + 300 = 700 substeps, 0.7 s; T-shirt 900 + 225
-substeps of 0.4 ms, 0.45 s). The pick and place points enter the physics as the gripper's
-velocity command, which the held vertices take, so ``d reward / d action`` is non-zero
-whenever something is held. Bounds: x and y within ±0.40 m of the table centre (the table
-region plus 5 cm), z in [0, 0.1] m.
+vertices within ``grasp_radius`` x spacing (0.75 cm) of the pick point, carries them along
+an eased arc (cosine speed profile, height peaking at ``arc_height`` = 0.5 x the
+table-plane travel) to the place point over ``substeps - settle_substeps`` substeps,
+releases them, and the cloth settles for ``settle_substeps`` (400 + 300 substeps, 0.7 s;
+T-shirt 900 + 225 substeps of 4e-4 s, 0.45 s). The carry is the gripper's velocity
+command, which the held vertices take, so ``d reward / d action`` is non-zero whenever
+something is held. Bounds: x and y within ±0.40 m of the table centre (the table region
+plus 5 cm), z in [0, 0.1] m (:data:`Z_MAX`). Horizons: Fold-Cloth-1 3, Fold-Cloth-3 4,
+Fold-T-shirt 5, the unfold tasks 10; every fold task has a step after its folds.
 
 Contact adjustment (``spec.contact_adjustment``, default on): the pick point snaps to the
 nearest cloth vertex (3-D distance) and the gripper holds the vertices within the grasp
 radius of that vertex that are also within it on the rest mesh (one layer of a folded
 cloth), so a pick always holds at least one vertex. The snap is straight-through for
-gradients: the gripper starts at the vertex but ``d start / d pick`` is the identity, so the
-pick point has the gradient of moving the start of the carry. Off, the raw pick point is
-used: a pick with no vertex within the grasp radius holds nothing, the cloth only settles,
-and the action gradient is exactly zero (tested).
+gradients (``d start / d pick`` is the identity). Off, the raw pick point is used: a pick
+with no vertex within the grasp radius holds nothing, the cloth only settles, and the
+action gradient is exactly zero.
 
-Experts (privileged state: ``state.physics``, ``state.t`` and the goal ``params.goal``),
-acting in the cloth's frame. Fold tasks: at step t < number of folds, fold t of the
-canonical plan done on the cloth where it lies (pick the plan's vertex where it is now,
-place it at the plan's place point moved by the cloth's rigid pose, fitted in the table
-plane on all vertices against the canonical cloth after t folds). Unfold tasks: the folds
-undone in reverse order in the cloth's fitted pose (pick the vertex fold j placed, put it
-where it was before fold j). Then, in both, at each remaining step the vertex farthest
-from its goal position (the goal aligned to the cloth, as D aligns it) picked and placed
-there, until every vertex is within :data:`CORRECTION_TOLERANCE` (3 cm) of it; then a
-no-op (that vertex picked and put back where it is). Every fold task has at least one
-step after its folds: its goal is the fold at rest, and the cloth is still moving when the
-last fold's settling ends (Fold-T-shirt's horizon was 4, its four folds: its expert ended
-1.65 cm from the goal while the caught sleeve was still sliding out, r_gt 0.845 ± 0.004).
-Seeds 0-19 (``dax-bench run --tasks T --methods random,expert --seeds 20 --quick``, r_gt at
-the last step, mean ± SE): Fold-Cloth-1 0.993 ± 0.000 (random actions 0.405 ± 0.010),
-Fold-Cloth-3 0.989 ± 0.003 (0.408), Fold-T-shirt 0.948 ± 0.001 (0.428), Unfold-Cloth-1
-0.998 ± 0.000 (0.423), Unfold-Cloth-3 0.962 ± 0.002 (0.402). (With the starts within
-±0.1 rad and ±1 cm, a goal fixed at the canonical pose and no self-collision they were
-0.896, 0.892, 0.905, 0.877 and 0.835, random 0.04-0.10: a random drag took the cloth away
-from that goal. With self-collision through a 16-slot spatial hash, which dropped the
-vertices of crowded stacks and their contacts, Fold-Cloth-3's expert scored 0.866 ± 0.017
-and Unfold-Cloth-3's 0.923: every pair is tested now, see ``ClothScene.self_search``.)
+Expert (:meth:`ClothTask.expert`; privileged: ``state.physics``, ``state.t`` and
+``params.goal``), acting in the cloth's frame. Fold tasks: at step t < the number of folds,
+fold t of the canonical plan done on the cloth where it lies (the plan's vertex picked
+where it is now and placed at the plan's place point moved by the cloth's rigid pose,
+fitted in the table plane on all vertices against the canonical cloth after t folds).
+Unfold tasks: the folds undone in reverse order in the cloth's fitted pose. Then, in both,
+at each remaining step the vertex farthest from its aligned goal position is picked and
+placed there, until every vertex is within :data:`CORRECTION_TOLERANCE` (3 cm) of it; then a
+no-op (that vertex picked and put back where it is).
 
-Known limitations. Self-collision is vertex-vertex at the mesh spacing, so layers lie about
-3 cm apart, and in the three-fold stack a vertex can still end in the plane of another
-layer (1 of the 100 that lie over another layer in Unfold-Cloth-3's start is within 1 mm
-of it). Layers slide over each other with only viscous friction (nothing holds a layer
-still against a steady push).
+Limitations. Self-collision is vertex-vertex at the mesh spacing, so layers lie about 3 cm
+apart, and in a three-fold stack a vertex can end in the plane of another layer. Layers
+slide over each other with only viscous friction (nothing holds a layer still against a
+steady push).
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 import dax_physics.cloth as dc
+from dax_physics.precision import mm
 
 from ..core import rewards
 from ..core.env import Env
@@ -135,12 +103,6 @@ from ._cloth import DEFAULT_MATERIAL, ClothParams, ClothScene
 
 __all__ = ["DEFAULT_MATERIAL", "FOLD_CLOTH1", "FOLD_CLOTH3", "FOLD_TSHIRT", "UNFOLD_CLOTH1",
            "UNFOLD_CLOTH3", "ClothParams", "ClothScene", "ClothTask", "replace_scene"]
-
-
-def _mm(a, b):
-    """``a @ b`` at full float32 precision (JAX's default lets GPUs round float32 dots to
-    TF32, a 1e-3 relative error in the aligned goal and so in the reward)."""
-    return jnp.matmul(a, b, precision=jax.lax.Precision.HIGHEST)
 
 
 #: Height range of pick and place points [m] (the table is z = 0).
@@ -176,7 +138,7 @@ def _planar_pose(x, ref):
     sin = jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
     th = jnp.arctan2(sin, cos)
     rot = jnp.asarray([[jnp.cos(th), -jnp.sin(th)], [jnp.sin(th), jnp.cos(th)]])
-    return rot, mx - _mm(rot, mr)
+    return rot, mx - mm(rot, mr)
 
 
 class ClothTask(Env):
@@ -216,11 +178,7 @@ class ClothTask(Env):
         for name in ("damping", "friction_static", "friction_dynamic"):
             if float(getattr(physics, name)) < 0:
                 raise ValueError(f"cloth {name} must be >= 0, got {float(getattr(physics, name))}")
-        cloth = _cloth.cloth_with(self.base_cloth, physics)
-        try:
-            dc.check_params(self.cfg, cloth)
-        except ValueError as err:
-            raise ValueError(f"unstable time step for these cloth parameters: {err}") from None
+        dc.check_params(self.cfg, _cloth.cloth_with(self.base_cloth, physics))
 
     def init(self, key, params):
         """The start cloth (:func:`start_vertices`) at a random rigid pose, at rest."""
@@ -249,7 +207,7 @@ class ClothTask(Env):
         """``goal`` (V, 3) moved by the rigid motion in the table plane (a rotation about
         the vertical and a shift) that best maps it onto the cloth ``x`` (least squares)."""
         rot, shift = _planar_pose(x, goal)
-        return jnp.concatenate([_mm(goal[:, :2], rot.T) + shift, goal[:, 2:]], 1)
+        return jnp.concatenate([mm(goal[:, :2], rot.T) + shift, goal[:, 2:]], 1)
 
     def distance(self, physics, goal):
         """``D`` [m]: the index-correspondence mean L2 between the cloth's vertices and the
@@ -290,10 +248,8 @@ class ClothTask(Env):
         n = len(plan)
         # The cloth's rigid pose is fitted on every vertex against the canonical cloth with
         # as many folds done (physics on the table does not depend on the pose, so the
-        # cloth is that state rotated and shifted). Fitting against the flat cloth on the
-        # vertices the folds leave in place failed from the third fold on: none stays put
-        # in every fold, and the pose fitted before Fold-Cloth-3's last fold was 0.37 rad
-        # off.
+        # cloth is that state rotated and shifted). No vertex stays put through every fold,
+        # so a fit against the flat cloth on "unmoved" vertices would not do.
         refs = jnp.asarray(_fold_states(scene, self.spec.substeps), x.dtype)
         # The correction: pick the vertex farthest from its goal position (the goal aligned
         # to the cloth, as D aligns it) and put it there, or, once every vertex is within
@@ -309,13 +265,13 @@ class ClothTask(Env):
             j = jnp.clip(n - 1 - t, 0, n - 1)  # the fold to undo at step t
             rot, shift = _planar_pose(x, refs[jnp.clip(n - t, 0, n)])
             before = refs[j][idx[j]]
-            place = jnp.concatenate([_mm(rot, before[:2]) + shift, before[2:]])
+            place = jnp.concatenate([mm(rot, before[:2]) + shift, before[2:]])
             return jnp.where(t < n, jnp.concatenate([x[idx[j]], place]), correction)
         k = jnp.minimum(t, n - 1)
         rot, shift = _planar_pose(x, refs[k])
 
         def posed(p):
-            return jnp.concatenate([_mm(rot, p[:2]) + shift, p[2:]])
+            return jnp.concatenate([mm(rot, p[:2]) + shift, p[2:]])
 
         places = jnp.asarray(np.stack([p for _, p in plan]), x.dtype)
         fold = jnp.concatenate([x[idx[k]], posed(places[k])])
@@ -360,11 +316,11 @@ def _reference(spec: TaskSpec, **scene) -> TaskSpec:
 
 
 # Reference resolution. Square cloths: the original's 512 vertices (a 16 x 32 mask) are
-# matched by 23 x 23 = 529 (the nearest square), at dt = 0.25 ms (stable bound 0.32 ms),
+# matched by 23 x 23 = 529 (the nearest square), at dt = 2.5e-4 s (stable bound 3.2e-4 s),
 # so a step simulates 0.5 s instead of 0.7 s. T-shirt: 3584 vertices (2.5 cm -> 4.34 mm
 # grid; the original has 3573); the fine outline has sliver triangles whose light
 # vertices bound the stable substep at 1.2e-5 s, so its 2000 substeps of 1e-5 s cover
-# only 20 ms: the same work per step as the original, not the same motion (a timing
+# only 0.02 s: the same work per step as the original, not the same motion (a timing
 # reference, not a task to solve).
 FOLD_CLOTH1_REFERENCE = _reference(FOLD_CLOTH1, n=23, dt=2.5e-4)
 FOLD_CLOTH3_REFERENCE = _reference(FOLD_CLOTH3, n=23, dt=2.5e-4)

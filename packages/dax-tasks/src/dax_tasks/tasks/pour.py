@@ -1,92 +1,64 @@
 """Pour-Water and Pour-Soup: pour the contents of a held bowl into a target bowl.
 
 Scene (SI units, z up). The MPM domain is ``domain`` cells of ``dx`` = 1 cm (0.34 x 0.24 x
-0.28 m); its slip walls (``WALL_CELLS`` = 3 cells) are the table: the floor is the walls'
-surface, ``floor_z`` = 3 cm, where water comes to rest (dax-physics >= 0.3; its walls
-used to hold material a cell below their surface, so splashed water sank to 1.9 cm). The
-whole domain is simulated (no moving window: spilled liquid may spread anywhere on it).
+0.28 m); its slip walls (:data:`WALL_CELLS` = 3 cells) are the table: the floor is the
+walls' surface, ``floor_z`` = 3 cm, where water comes to rest. The whole domain is
+simulated (no moving window: spilled liquid may spread anywhere on it).
 
 * The *source* bowl (collider 0, shape ``bowl``, outer radius 5 cm, height 6 cm, wall
   2 cm = two cells so particles cannot tunnel, i.e. a 3 cm x 4 cm cavity) is held by the
   gripper. It is kinematic: the action sets its velocity each substep.
 * The *target* bowl (collider 1, outer radius 6 cm, height 6 cm, wall 2 cm) stands on the
-  table at ``target_xy`` plus a random offset (see "Initial state"), fixed for the episode.
+  table at ``target_xy`` plus a random offset (see "Start"), fixed for the episode.
 * Pour-Water: water (weakly compressible fluid, ``bulk_modulus`` 2e4 Pa, rho 1000 kg/m^3)
   fills the source cavity to ``fill_height`` = 2.5 cm: 476 particles at 8 per cell.
 * Pour-Soup: water to 2 cm plus ``n_chunks`` = 3 stiff elastic cubes (tofu-like,
-  fixed-corotated, E = 2e4 Pa, nu = 0.3, rho 1050 kg/m^3) of side 1.5 cm (8 particles
-  each, sharing the cube's volume) replacing the water where they sit; at 4 particles per
-  cell, 139 water + 24 chunk particles. E is chosen so the P-wave speed (5.1 m/s) stays
-  near water's (4.5 m/s) and the step does not shrink; a chunk's strain under its own
-  weight is below 1 %. Why 4 particles per cell (8 until 2026-11-25, 366 particles): in
-  the resolution study (``python -m benchmarks.tasks resolution --task pour_soup``) every
-  rung at 1 cm cells with 8 or 16 particles per cell ends its pour at r_gt 0.91-0.92,
-  while 2 or 4 per cell and both fine rungs (5 mm cells, 4 or 8 per cell) end at
-  0.98-1.00; with 4 the particle clouds are also nearer the fine rungs' (4.7-5.1 against
-  5.2-5.3 mm mean Chamfer distance, seeds 0-1, either fine rung) at 0.75-0.9x the CPU
-  time.
-* The materials (:data:`WATER`, :data:`CHUNK`) and the bowls' friction (0.2) are
-  ``params.physics`` (a :class:`dax_physics.MaterialParams`: material 0 water, material 1
-  the chunks), so viscosity, bulk modulus or friction can be changed, batched or
-  differentiated without recompiling.
+  fixed-corotated, E = 2e4 Pa, nu = 0.3, rho 1050 kg/m^3) of side 1.5 cm replacing the
+  water where they sit; at 4 particles per cell, 139 water + 24 chunk particles (8 per
+  chunk, sharing the cube's volume). E keeps the chunks' P-wave speed near water's, so
+  the substep is no shorter than Pour-Water's. The particles per cell are the resolution
+  study's choice (the dax-tasks README).
+* The materials (:data:`WATER`, :data:`CHUNK`) and the bowls' friction
+  (:data:`BOWL_FRICTION`) are ``params.physics`` (a :class:`dax_physics.MaterialParams`:
+  material 0 water, material 1 the chunks), so viscosity, bulk modulus or friction can be
+  changed, batched or differentiated without recompiling. Each bowl collider acts only on
+  the grid nodes around it (``dax_physics.colliders.apply_colliders_grid``).
 
-Speed (batch 1, 2-core CPU, ``python -m benchmarks.tasks --tasks pour_water,pour_soup
---batch 1``): 0.019 s (water) and 0.026 s (soup, measured at 8 particles per cell; at 4
-per cell a step takes 0.88x as long, 0.0207 against 0.0235 s interleaved in one process)
-per environment step, 0.07 s / 0.13 s with the action gradient (DaXBench Pour-Water:
-0.13 s per step, 0.78 s for its gradient).
-Each bowl collider is evaluated only on the node cube around it (3.4k and 4.9k of the
-22.8k nodes; ``dax_physics.colliders.apply_colliders_grid``); evaluated on every node
-they took 92 % of a substep (0.22 s per step).
-
-Substeps: ``dt`` = 0.025 / 30 s (water) and 0.025 / 36 s (soup), within the CFL bound
-for ``max_speed`` 1.5 m/s; ``substeps`` = 30 / 36, so one environment step is 25 ms of
+Substeps: ``dt`` = 0.025 / 30 s (water) and 0.025 / 36 s (soup), within the CFL bound for
+``max_speed`` 1.5 m/s; ``substeps`` = 30 / 36, so one environment step is 0.025 s of
 simulated time and the horizon of 100 steps is 2.5 s.
 
 Action (low-level velocity): ``(vx, vy, vz, omega)``: the wrist's linear velocity [m/s]
 and the angular velocity [rad/s] of the bowl about the world y axis through the wrist
 (positive omega lowers the bowl's +x rim, towards the target bowl). The wrist is the
 centre of the source bowl's rim. Bounds: |v| <= 0.4 m/s per axis, |omega| <= 3 rad/s, so
-the bowl can tilt past its spill angle (about 0.46 rad for water, 0.59 for soup) in 7
-steps and reach pi/2 (opening sideways) in 21 of the 100 steps. Each action is held
-for the env step; the wrist is kept inside ``wrist_low``/``wrist_high`` and the tilt inside
-``tilt_range`` by clipping the commanded velocity (a clipped component has zero gradient).
+the bowl can tilt past its spill angle in a few steps and open sideways (pi/2) well
+within the horizon. Each action is held for the env step; the wrist is kept inside
+``wrist_low``/``wrist_high`` and the tilt inside ``tilt_range`` by clipping the commanded
+velocity (a clipped component has zero gradient).
 
-Initial state, drawn from the seed: the source bowl's wrist at ``source_wrist`` (0.09,
-0.12, 0.17) m plus a uniform offset of up to ``init_range`` (±2 cm in x, ±3 cm in y, ±1 cm
-in z), upright, contents at rest; the target bowl at ``target_xy`` (0.23, 0.12) m plus a
-uniform offset of up to ``target_range`` (±2 cm in x and y). The ranges keep both bowls
-inside the table (the floor inside the walls spans x 0.03-0.31 m and y 0.03-0.21 m; the
-target bowl's rim reaches x 0.31 m at most and the source bowl's y 0.04-0.20 m), the held
-bowl above the target's rim, and the pour point (below) inside the wrist's workspace.
-Particles keep their index (same count, same order) for every seed. (Before dax-tasks
-0.2.0 the target bowl did not move and the source's y range was ±2 cm.)
+Start, drawn from the key: the source bowl's wrist at ``source_wrist`` (0.09, 0.12, 0.17) m
+plus a uniform offset of up to ``init_range`` (±2 cm in x, ±3 cm in y, ±1 cm in z),
+upright, contents at rest; the target bowl at ``target_xy`` (0.23, 0.12) m plus a uniform
+offset of up to ``target_range`` (±2 cm in x and y). The ranges keep both bowls inside the
+table (the floor inside the walls spans x 0.03-0.31 m and y 0.03-0.21 m; the target
+bowl's rim reaches x 0.31 m at most and the source bowl's y 0.04-0.20 m), the held bowl
+above the target's rim, and the pour point (below) inside the wrist's workspace.
+Particles keep their index (same count, same order) for every seed.
 
-Distance and reward: ``D = 1/N sum_i d_i`` [m], ``d_i`` the smooth (C1) Euclidean distance
-of particle i to the target bowl's cavity (a cylinder of the inner radius from the inner
-bottom to the rim, grown by ``dx/2`` for particles resting against the walls), 0 inside:
+Distance: ``D = 1/N sum_i d_i`` [m], ``d_i`` the smooth (C1) Euclidean distance of particle
+i to the target bowl's cavity (a cylinder of the inner radius from the inner bottom to the
+rim, grown by ``dx/2`` for particles resting against the walls), 0 inside:
 ``d = sqrt(relu(rho - r_in)^2 + relu(z_bot - z)^2 + relu(z - z_rim)^2 + eps) - sqrt(eps)``.
 For the soup the chunks' particles count like water's (the ingredients must go too).
-λ = 20 /m: ``r_gt = exp(-20 D)``; doing nothing scores about 0.16 (the contents are
-about 9 cm from the target cavity), everything poured 1.0, 5 % spilled 5 cm away 0.95; the
-scripted expert ends a Pour-Water episode at 0.877 +- 0.004 (seeds 0-19, dax-physics 0.3;
-the rest splashed onto the table) and a Pour-Soup episode at 0.990 +- 0.002 (0.934 +- 0.002
-at 8 particles per cell), random actions at 0.342 +- 0.011 and 0.196 +- 0.013
-(``dax-bench run --tasks pour_water,pour_soup --methods random,expert --seeds 20
---quick``; with the target bowl fixed and 8 particles per cell: 0.871, 0.914, 0.341,
-0.208). With dax-physics 0.2 they were
-0.950, 1.0, 0.15 and 0.13: its water held together by tension (negative pressure), splashed
-less and rested a cell below the table (so spilled water counted 1.1 cm further from the
-cavity); water without tension splashes more.
-``goal(spec)`` (the (N, 3) goal set the template stores) is N particles packed on a
-regular lattice in the target cavity, at ``target_xy``, from its bottom up; ``D`` itself
-does not use it: it measures to the cavity of the episode's own target bowl
-(``physics.colliders.pos[TARGET]``).
+λ = 20 /m: ``r_gt = exp(-20 D)`` is 1 with everything poured. The goal set the template
+stores (:meth:`Pour.canonical_goal`, (N, 3)) is N particles packed on a regular lattice in
+the target cavity at ``target_xy``, from its bottom up; ``D`` does not use it: it measures
+to the cavity of the episode's own target bowl (``physics.colliders.pos[TARGET]``).
 
-Expert (privileged state, see :func:`expert_action`): drive the wrist to the pour point
-above the episode's target bowl (read from the state), start tilting once within 2 cm of
-it, tilt to ``pour_angle`` (2.3 rad) and hold, and tilt back over the last steps of the
-horizon.
+Expert (privileged state, :meth:`Pour.expert`): drive the wrist to the pour point above the
+episode's target bowl (read from the state), start tilting once within 2 cm of it, tilt
+to ``pour_angle`` (2.3 rad) and hold, and tilt back over the last steps of the horizon.
 """
 
 from __future__ import annotations
@@ -380,12 +352,12 @@ POUR_WATER = _spec("pour_water", PourScene(), 30)
 POUR_SOUP = _spec("pour_soup", PourScene(dt=0.025 / 36, fill_height=0.02, n_chunks=3, ppc=4),
                   36)
 #: The original benchmark's resolution (``make(name, resolution="reference")``).
-#: Pour-Water: its 702 particles (``ppc`` 11 for 8: 690); its 23 substeps per 25 ms step
-#: would exceed this fluid's stable dt (0.84 ms), so the default's 30 stay; the whole
+#: Pour-Water: its 702 particles (``ppc`` 11 for 8: 690); its 23 substeps per 0.025 s
+#: step would exceed this fluid's stable dt (8.4e-4 s), so the default's 30 stay; the whole
 #: 34 x 24 x 28 grid stays too (the bowls need it: 22848 cells for its active
 #: 26 x 20 x 26 = 13520). Pour-Soup: its 7631 particles with the grid refined to
 #: dx = 5 mm (68 x 48 x 56 = 182784 cells for its 128 x 64 x 128 = 1048576) and ``ppc``
-#: 19 (7891 particles; 17 and 18 give 6977); 72 substeps of 0.35 ms (the stable bound at
+#: 19 (7891 particles; 17 and 18 give 6977); 72 substeps of 3.5e-4 s (the stable bound at
 #: 5 mm; it has 25).
 POUR_WATER_REFERENCE = _spec("pour_water", PourScene(ppc=11), 30)
 POUR_SOUP_REFERENCE = _spec("pour_soup", PourScene(

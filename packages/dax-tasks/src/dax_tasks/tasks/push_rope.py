@@ -3,29 +3,28 @@
 Scene (SI units, z up). An elastic MPM rope (fixed-corotated, :data:`ROPE`: E = 5 kPa,
 nu = 0.3, rho = 1100 kg/m^3) of length 0.24 m and radius 1 cm lies on a table (a ``plane``
 collider at ``table_z``, Coulomb friction 0.5). A vertical capsule pusher (radius 1.5 cm,
-friction 0.3) is the end-effector. The material and the two friction coefficients are
+friction 0.3) is the end effector. The material and the two friction coefficients are
 ``params.physics`` (a :class:`dax_physics.MaterialParams`), so they can be changed,
-batched or differentiated without recompiling. The MPM
-grid has 1 cm cells; the allocated grid is a 36 x 36 x 10 cell window that follows the
-rope inside a 64 x 64 x 16 cell (0.64 x 0.64 x 0.16 m) domain.
+batched or differentiated without recompiling. The MPM grid has 1 cm cells; the allocated
+grid is a 36 x 36 x 10 cell window that follows the rope inside a 64 x 64 x 16 cell
+(0.64 x 0.64 x 0.16 m) domain.
 
-Initial state. The rope's particles are sampled once on a straight reference rope
-(``rest_particles``) and bent onto a random centre line parametrised by arc length,
-``theta(s) = theta0 + sum_k a_k sin(k pi s / L + phi_k)`` (k = 1..3, ``a_k`` uniform in
-``[-A/k, A/k]``, A = 0.6 rad, heading ``theta0`` uniform in ±0.5 rad, ``heading_range``).
-The bent rope is then shifted by a uniform draw over all the shifts that keep every
-particle inside the start square, the table centre ± 0.175 m (``start_half``: the pusher
-reaches 0.2 m from the centre and needs its own and the rope's radius, 2.5 cm, to get
-behind the rope; checked when the task is built), and at most 5 cm across the goal line
-(y, ``offset_range``): the rope lies anywhere along the line the square leaves room for
-(its centre within ±5.5 cm of the table centre when straight along the line, more when
-turned or bent; the 24 cm rope fills most of the pusher's 40 cm reach) and up to 5 cm to
-either side of it. Bending by arc length keeps the particle count and the index of every
-particle, so particles correspond across seeds and to the goal. (Before: heading ±0.3
-rad, centred along the line, ±2 cm across it.)
+Start, drawn from the key. The rope's particles are sampled once on a straight reference
+rope (:func:`rest_particles`) and bent onto a random centre line parametrised by arc
+length, ``theta(s) = theta0 + sum_k a_k sin(k pi s / L + phi_k)`` (k = 1..3, ``a_k``
+uniform in ``[-A/k, A/k]``, A = ``bend_amplitude`` = 0.6 rad, heading ``theta0`` uniform in
+±``heading_range`` = ±0.5 rad). The bent rope is then shifted by a uniform draw over all
+the shifts that keep every particle inside the start square, the table centre
+± ``start_half`` = 0.175 m (the pusher reaches 0.2 m from the centre and needs its own and
+the rope's radius to get behind the rope; checked when the task is built), and at most
+``offset_range`` = 5 cm across the goal line (y): the rope lies anywhere along the line the
+square leaves room for and up to 5 cm to either side of it. Bending by arc length keeps the
+particle count and the index of every particle, so particles correspond across seeds and
+to the goal.
 
-Goal (defined directly, not by a scripted motion). The same reference particles laid
-straight along x, centred on the table, settled under gravity for 0.25 s.
+Goal (defined directly, not by a scripted motion): the same reference particles laid
+straight along x, centred on the table, settled under gravity for
+:data:`GOAL_SETTLE_TIME` (0.25 s).
 
 Action: a push macro ``(x, y, z, x', y', z')`` [m]: the pusher's tip (its lowest point) is
 placed at the start point, moved in a straight line to the end point at constant velocity
@@ -34,29 +33,24 @@ length is clipped to ``push_speed * push_time`` (0.15 m by default), so the push
 exceeds ``push_speed``. With contact adjustment (default on) the start point snaps to the
 rope particle nearest to it in the table plane, moved back along the push direction by
 the pusher radius plus the rope radius, and the tip height is lowered to that particle's
-height if it was above; the push displacement ``end - start`` is kept. A push shorter
-than 1 mm in the table plane is left unadjusted (it has no direction to back off along).
-Actions outside the bounds are clipped (x, y within 0.2 m of the table centre, tip
-height 0 to 6 cm above the table).
+height if it was above; the push displacement ``end - start`` is kept. A push shorter than
+:data:`MIN_PUSH` (1 mm) in the table plane is left unadjusted (it has no direction to back
+off along). Actions outside the bounds are clipped (x, y within 0.2 m of the table
+centre, tip height 0 to 6 cm above the table). Horizon 6.
 
-Distance and reward: the goal is the straight rope on the goal line (y = the table
-centre's), wherever along the line. ``D`` = index-correspondence mean L2 [m] between the
-rope's particles and the goal's after the goal is slid along its line (x) by the rope's
-mean offset from it (the least-squares shift; :meth:`PushRope.aligned_goal`). Why slide:
-a push along this soft rope compresses it rather than sliding it, so no push could undo
-an offset along the line, and a start anywhere along it would otherwise be a different,
-often impossible, task. Why only slide (not the rigid alignment of the cloth tasks, which
-also turns the goal): the rope is elastic and starts unstrained in its bent shape, so
-pushes cannot make it lastingly straighter. With starts at any heading and the goal
-turned and shifted onto the rope, the start already scored r_gt 0.895 and the expert
-ended at 0.901 (seeds 0-9; with 2.5 times the bend, A = 1.5 rad: 0.750 and 0.824). What
-pushes can change is where the rope lies across the line and which way it points.
-λ = 20 /m, so ``r_gt = exp(-20 D)`` is about 0.37 at a mean error of 5 cm. Seeds 0-19
-(``dax-bench run --tasks push_rope --methods random,expert --seeds 20 --quick``, r_gt
-after the last step, mean ± SE): random actions 0.438 ± 0.042, the scripted expert
-0.885 ± 0.006 (D 0.4-1.0 cm); before, with the narrow starts and the goal fixed on the
-table: 0.482 ± 0.041 and 0.883 ± 0.007. Doing nothing (six pushes that miss the rope)
-scores 0.577 on the starts of ``PRNGKey`` 0-9.
+Distance: the goal is the straight rope on the goal line (y = the table centre's), wherever
+along the line. ``D`` = index-correspondence mean L2 [m] between the rope's particles and
+the goal's after the goal is slid along its line (x) by the rope's mean offset from it (the
+least-squares shift; :meth:`PushRope.aligned_goal`). A push along this soft rope
+compresses it rather than sliding it, so no push could undo an offset along the line. The
+goal is only slid, not also turned onto the rope as the cloth goals are: the rope is
+elastic and starts unstrained in its bent shape, so pushes cannot make it lastingly
+straighter; what they change is where it lies across the line and which way it points.
+λ = 20 /m, so ``r_gt = exp(-20 D)`` is about 0.37 at a mean error of 5 cm.
+
+Expert (privileged state, :meth:`PushRope.expert`): push the particle farthest from the
+goal line, at least :data:`END_MARGIN` from either end, straight across towards it and past
+it (the rope lags the pusher; :data:`PUSH_GAIN`, :data:`PUSH_EXTRA`).
 """
 
 from __future__ import annotations
@@ -75,7 +69,6 @@ from dax_physics import (
     MPMConfig,
     checkpointed_scan,
     init_state,
-    sampling,
     set_collider_velocity,
     step,
 )
@@ -84,6 +77,8 @@ from ..core import rewards
 from ..core.env import MPMEnv
 from ..core.spec import TaskSpec
 from ..viz import images
+from . import _rope
+from ._rope import rest_particles
 
 TABLE, PUSHER = 0, 1
 #: Pushes shorter than this [m] in the table plane are not contact-adjusted.
@@ -136,27 +131,10 @@ def mpm_config(scene: PushRopeScene) -> MPMConfig:
                      max_speed=scene.max_speed)
 
 
-def rest_particles(scene: PushRopeScene):
-    """Reference particles ``(s, u, w)`` [m] of the straight rope (s along it, u across,
-    w up, both relative to its axis) and the rest volume per particle [m^3]."""
-    r, length = scene.rope_radius, scene.rope_length
-    x, vol = sampling.box([0.0, -r, -r], [length, r, r], scene.dx, ppc=scene.ppc, seed=0)
-    keep = x[:, 1] ** 2 + x[:, 2] ** 2 <= r * r
-    return x[keep], vol
-
-
 def _place(scene: PushRopeScene, rest, theta_fn, offset):
     """Bend the reference particles onto the centre line with tangent angle ``theta_fn(s)``,
     its midpoint-mean at the table centre plus ``offset`` (2,)."""
-    n = 257
-    s = jnp.linspace(0.0, scene.rope_length, n)
-    th = theta_fn(s)
-    ds = scene.rope_length / (n - 1)
-    mid = 0.5 * (th[1:] + th[:-1])
-    cx = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.cos(mid) * ds)])
-    cy = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.sin(mid) * ds)])
-    sp, u, w = rest[:, 0], rest[:, 1], rest[:, 2]
-    px, py, pt = jnp.interp(sp, s, cx), jnp.interp(sp, s, cy), jnp.interp(sp, s, th)
+    px, py, pt, u, w = _rope.centre_line(scene, rest, theta_fn)
     shift = jnp.asarray(scene.centre) + offset - jnp.stack([px.mean(), py.mean()])
     x = px - u * jnp.sin(pt) + shift[0]
     y = py + u * jnp.cos(pt) + shift[1]
@@ -178,17 +156,11 @@ def straight(scene: PushRopeScene, rest) -> np.ndarray:
 GOAL_SETTLE_TIME = 0.25
 #: The expert pushes no closer than this to the rope's ends [m] (along the rope).
 END_MARGIN = 0.03
-#: The expert pushes this many times the pushed particle's distance to its goal line.
-#: Measured (seeds 0-2, first push): the particle moves only 15-55 % of the pusher's travel
-#: (the soft rope bends around the pusher and slides on the table), so pushing exactly
-#: to the line undershoots. Final r_gt over seeds 0-9 by gain: 1.0: 0.770, 1.3: 0.824,
-#: 1.6: 0.856, 1.8: 0.867, 2.0: 0.880, 2.2: 0.890, 2.5: 0.850 (some seeds overshoot),
-#: 3.0: 0.678; 2 sits inside the plateau (the starts of dax-tasks 0.2.0: ±2 cm, ±0.3 rad).
+#: The expert pushes this many times the pushed particle's distance to its goal line: the
+#: particle moves only part of the pusher's travel (the soft rope bends around the pusher
+#: and slides on the table), so a push that ends at the line undershoots.
 PUSH_GAIN = 2.0
-#: ... but travels at most this far [m] past the line. With the wider starts (up to 6 cm
-#: across the line, ±0.6 rad), seeds 0-9: gain 2 uncapped 0.841 (worst seed 0.61: long
-#: pushes overshoot), gain 1.6 0.835, 2.4 0.764; gain 2 capped at 3 cm 0.861, at 4.5 cm
-#: 0.848. The default starts (5 cm, ±0.5 rad) with the 3 cm cap: 0.885 (worst seed 0.867).
+#: ... but travels at most this far [m] past the line (a long push overshoots).
 PUSH_EXTRA = 0.03
 
 
@@ -249,22 +221,14 @@ class PushRope(MPMEnv):
 
     def start_heading(self, key):
         """The start's heading ``theta0`` [rad] that :meth:`init` draws from ``key``: uniform
-        in ``+-scene.heading_range``."""
-        k_head = jax.random.split(key, 4)[2]
-        h = self.spec.scene.heading_range
-        return jax.random.uniform(k_head, (), jnp.float32, minval=-h, maxval=h)
+        in ``±scene.heading_range``."""
+        return _rope.start_heading(self.spec.scene, key)
 
     def init(self, key, params):
         """A random rope shape (see the module docstring) at rest, pusher parked above."""
         scene = self.spec.scene
         k_amp, k_phase, _, k_off = jax.random.split(key, 4)
-        modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
-        # float32 draws in either precision: a seed gives the same rope under x64
-        amp = jax.random.uniform(k_amp, (scene.bend_modes,), jnp.float32, minval=-1.0,
-                                 maxval=1.0)
-        amp = amp * scene.bend_amplitude / modes
-        phase = jax.random.uniform(k_phase, (scene.bend_modes,), jnp.float32,
-                                   maxval=2 * math.pi)
+        modes, amp, phase = _rope.bend_modes(scene, k_amp, k_phase)
         theta0 = self.start_heading(key)
         u = jax.random.uniform(k_off, (2,), jnp.float32)
 

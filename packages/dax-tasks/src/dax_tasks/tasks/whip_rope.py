@@ -8,97 +8,57 @@ the first ``grip_length`` = 3 cm of the rope (31 of the 288 particles, the same 
 for every seed). The grip is rigid and infinitely heavy: in every substep the grid nodes
 that carry held mass move at the gripper's velocity (``dax_physics.step``'s ``drive``),
 and after the substep the held particles are set on the gripper's path with its velocity
-and a zero APIC matrix (no gripper collider is evaluated on the grid). The gripper's
-position is the centroid of the held particles (the end-effector).
-
-Why the rope no longer tears (dax-tasks 0.2.0; ``benchmarks/whip_tear.py``). Before, the
-held particles were only reset after each substep. The stress of the rope they pulled
-slowed the grid nodes they share with it, so the velocity field moved slower than the
-grip: the gap opening between the grip and the free rope entered no particle's F, and
-no force closed it. Pulled suddenly along the rope the free rope was left behind (largest
-held-to-free gap over 12 steps: 0.9 cm at 0.5 m/s, 2.8 at 1, 15.6 at 2, 31 at 3;
-sideways 4.4 cm at 2 m/s), while the free rope itself stretched little: the fault was the
-grip, not the resolution. Driving the grid nodes fixes the junction (gap 0.31 cm, as at
-rest, at every speed); the old rope (E = 4e4 Pa) then survives 2 m/s but stretches 80 %
-locally and tears inside at 3 m/s (a P-wave speed of 7 m/s is too slow for a whip);
-E = 1.6e5 Pa (14 m/s) stretches at most 25 % at 2 m/s and 43 % at 3 m/s (largest
-stretch between 1-cm slices of the centre line; 9 % at rest is slicing noise) and stays
-whole. A stiffer old grip alone does not do it: with E = 4e5 Pa the gap was still 1.1 cm
-at 2 m/s and 2.7 cm at 3 m/s.
+and a zero APIC matrix (no gripper collider is evaluated on the grid). Driving the grid
+keeps the velocity field at the junction moving with the grip, so a sudden pull of up to
+the action bound does not open a gap between the held and the free rope; the rope's
+stiffness keeps a whip from stretching it apart. The gripper's position is the centroid of
+the held particles (the end effector).
 
 Resolution. Cells ``dx`` = 1.25 cm; 8 particles per cell (288 particles, about 4 across
 the rope); the allocated grid is a 30 x 30 x 12 cell window (0.375 x 0.375 x 0.15 m) that
 follows the rope inside an 80 x 80 x 24 cell domain (1 x 1 x 0.3 m). Substep ``dt`` =
-10/29 ms (CFL bound 0.347 ms for the P-wave speed 14 m/s plus ``max_speed`` 4 m/s); 29
-substeps per env step (10 ms), horizon 50 steps (0.5 s).
-
-Measured (2-core CPU, batch 1, ``python -m benchmarks.tasks --tasks whip_rope --batch
-1``): 0.022 s per env step forward, 0.17 s with the action gradient (0.011 s and 0.034 s
-before 0.2.0: 16 substeps, no drive channel; DaXBench Whip-Rope: 0.125 s per step).
+0.01 / 29 s (CFL bound 3.47e-4 s for the P-wave speed 14 m/s plus ``max_speed`` 4 m/s); 29
+substeps per env step (0.01 s), horizon 50 steps (0.5 s).
 
 Action (``velocity``): the gripper's velocity ``(vx, vy, vz)`` [m/s], held for the env
-step. Bounds +-3 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 3 m/s.
+step. Bounds ±3 m/s per axis and the speed (norm) is capped at ``grip_speed`` = 3 m/s.
 The gripper's end point is kept inside the workspace (:func:`workspace`; z at least the
 held particles' rest height, so the held end never enters the table); a clipped
 component has zero gradient.
 
-Initial state. The rope's particles are sampled once on a straight reference rope and
-bent onto a random centre line by arc length s (from the held end),
+Start, drawn from the key. The rope's particles are sampled once on a straight reference
+rope and bent onto a random centre line by arc length s (from the held end),
 ``theta(s) = theta0 + sum_k a_k (sin(k pi s / L + phi_k) - sin(phi_k))`` (k = 1..3,
-``a_k`` uniform in ``[-A/k, A/k]``, A = 0.4 rad, heading ``theta0`` uniform in +-0.3 rad,
-``heading_range``), its held end at ``rope_start`` (0.55, 0.5) m (the rope along +x) plus
-a uniform offset of up to 5 cm in x and in y (``offset_range``; the held end stays inside
-the gripper's workspace, checked when the task is built). Particles keep their index
-across seeds. (Before: the same headings, offsets up to 2 cm.)
+``a_k`` uniform in ``[-A/k, A/k]``, A = ``bend_amplitude`` = 0.4 rad, heading ``theta0``
+uniform in ±``heading_range`` = ±0.3 rad), its held end at ``rope_start`` (0.55, 0.5) m
+(the rope along +x) plus a uniform offset of up to ``offset_range`` = 5 cm in x and in y
+(the held end stays inside the gripper's workspace, checked when the task is built).
+Particles keep their index across seeds. The goal is a place on the table, as in the
+original benchmark, so the start varies only as far as the expert's whip still lands the
+rope there (the dax-tasks README says why the goal is not aligned to the start).
 
-Why the start varies no more than this. The goal is a place on the table (below), as in
-the original benchmark, not a pose relative to the start: a goal that moved with the
-start would depend on something no observation after the first step shows, and one
-aligned to the rope like the cloth tasks' would reward a curl of the goal's shape laid
-anywhere, by any motion. With a fixed goal the start may vary as far as the whip still
-lands the rope on it: the expert's tracking absorbs an offset of the held end, and the
-canonical first drag pulls the start's bend, and some of its heading, out of the rope.
-Measured (expert, r_gt after the last step, the starts of ``dax-bench`` seeds 0-19,
-offsets up to 5 cm): headings +-0.3 rad 0.927 +- 0.011, +-0.4 rad 0.898 +- 0.013, +-0.5
-rad 0.880 +- 0.017 (the worst loops 3.8-5.3 cm off); +-0.8 rad (tracking gain 0.5, the
-starts of ``PRNGKey`` 0-9) 0.79: two loops missed (r_gt 0.31 and 0.41). A wider heading
-needs an expert that turns its throw.
-
-Goal (fixed per task). The end state (step 50) of the *canonical throw* from the canonical
+Goal (fixed per task): the end state (step 50) of the *canonical throw* from the canonical
 initial state (the straight rope): a whip loop that flips the rope over to the other side
 of the gripper. The throw (``scene.throw``) is four raised-cosine velocity bumps of the
 gripper: 12 cm sideways (-y, steps 0-11) and, overlapping, 20 cm back along the rope
 (-x, steps 2-19), so the rope is dragged out of its start shape and slides after the
-gripper (peak speed 2.26 m/s); then 12 cm back (+y, steps 14-25) and, overlapping, the
-turn into a 28 cm return (+x, steps 18-43) that ends 8 cm past the start. The rope, still
-sliding back, swings round the turning gripper (the loop), and the return drags it out
-behind: at step 50 the held end is 8 cm from where it started and the rope lies on its
-other side, the far end 4 cm behind the gripper (-x) and 10 cm to its side, where it
-began 25 cm in front. The gripper's path is 0.64 m long; at the 0.75 m/s of a slow drag
-that is 0.86 s, well over the 0.5 s horizon; and since the held end ends only 8 cm from
-its start, moving it towards the goal's position earns little while the rope still
-points the wrong way (see CEM-MPC below).
+gripper; then 12 cm back (+y, steps 14-25) and, overlapping, the turn into a 28 cm return
+(+x, steps 18-43) that ends 8 cm past the start. The rope, still sliding back, swings
+round the turning gripper (the loop), and the return drags it out behind: at step 50 the
+held end is 8 cm from where it started and the rope lies on its other side, the far end
+4 cm behind the gripper (-x) and 10 cm to its side, where it began 25 cm in front. The
+gripper's 0.64 m path is too long for a slow drag within the horizon, and moving the held
+end towards the goal's position earns little while the rope still points the wrong way.
 
-Distance and reward: ``D`` = index-correspondence mean L2 [m] between the rope's particles
-and the goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at
-D = 12 cm. Seeds 0-19, ``dax-bench run --tasks whip_rope --methods random,expert
---seeds 20 --quick`` (r_gt at the last step, mean +- SE): random 0.344 +- 0.030, expert
-0.927 +- 0.011 (with offsets up to 2 cm and the expert tracking at half its error,
-uncapped: 0.363 +- 0.024 and 0.934 +- 0.013). Quick-budget CEM-MPC (``--methods
-cem_mpc``): 0.455 +- 0.011 (0.456 +- 0.013 with the 2 cm starts; its one-step plans drag
-the held end towards the goal's and leave the rope unflipped: D 7.6-14.4 cm).
+Distance: ``D`` = index-correspondence mean L2 [m] between the rope's particles and the
+goal's; λ = 6 /m: ``r_gt = exp(-6 D)`` is 0.9 at D = 1.8 cm and 0.5 at D = 12 cm.
 
-Expert (:func:`expert_action`, privileged: reads the step counter and the gripper): the
+Expert (:meth:`WhipRope.expert`, privileged: reads the step counter and the gripper): the
 canonical throw's velocity at step t plus a feedback term that steers the gripper onto the
-canonical path (``TRACK_GAIN``: a quarter of the position error per step, at most
-``TRACK_SPEED`` = 1 m/s, so a start 7 cm off is caught up during the first drag rather
-than in one yank; at half the error, capped, it scored 0.894 +- 0.021, one loop at
-0.55), so it reproduces the goal from a randomised start: the first drag pulls the
-random bend out of the rope, and the return straightens what the loop leaves. Its D over
-seeds 0-19: 0.3-4.0 cm (mean 1.3 cm); on the worst seeds (7 and 14: 4.0 and 2.6 cm) the
-start makes the loop land a few cm off. (The first whip goal of 0.2.0, a sideways whip
-at the end of a drag, flipped the far end on only about half of the seeds: expert 0.70
-at λ = 5, and a greedy drag to the goal's held end scored as well, CEM-MPC 0.72.)
+canonical path (:data:`TRACK_GAIN`: a quarter of the position error per step, at most
+:data:`TRACK_SPEED` = 1 m/s, so a start a few cm off is caught up during the first drag
+rather than in one yank). It reproduces the goal from a randomised start: the first drag
+pulls the random bend out of the rope, and the return straightens what the loop leaves.
 """
 
 from __future__ import annotations
@@ -117,13 +77,14 @@ from dax_physics import (
     MPMConfig,
     checkpointed_scan,
     init_state,
-    sampling,
     step,
 )
 
 from ..core.env import MPMEnv
 from ..core.spec import TaskSpec
 from ..viz import images
+from . import _rope
+from ._rope import rest_particles
 
 #: The rope's default material (``params.physics`` material 0).
 ROPE = Material("elastic", 1100.0, youngs_modulus=1.6e5, poisson_ratio=0.3)
@@ -136,7 +97,7 @@ class WhipRopeScene:
     """Static scene of Whip-Rope (SI units); see the module docstring."""
 
     dx: float = 0.0125                # grid cell [m]
-    dt: float = 0.01 / 29             # substep [s] (29 per 10 ms env step)
+    dt: float = 0.01 / 29             # substep [s] (29 per 0.01 s env step)
     domain: tuple = (80, 80, 24)      # cells (1.0 x 1.0 x 0.3 m)
     window: tuple = (30, 30, 12)      # active-region cells
     table_z: float = 0.045            # table height [m]
@@ -164,9 +125,9 @@ class WhipRopeScene:
         (18, 26, 0.28, 0.0, 0.0),
     )
     segment: int = 8                  # substeps per checkpointed segment
-    #: the grip drives the grid nodes its particles touch (``step``'s ``drive``); False is
-    #: the grip before dax-tasks 0.2.0 (held particles only reset after each substep),
-    #: kept to measure the tearing it caused (benchmarks/whip_tear.py)
+    #: the grip drives the grid nodes its particles touch (``step``'s ``drive``); False:
+    #: the held particles are only reset after each substep, which lets a fast pull tear
+    #: the rope off the grip (``benchmarks/whip_tear.py`` compares the two)
     grid_grip: bool = True
 
     @property
@@ -185,15 +146,6 @@ def mpm_config(scene: WhipRopeScene) -> MPMConfig:
                      max_speed=scene.max_speed)
 
 
-def rest_particles(scene: WhipRopeScene):
-    """Reference particles ``(s, u, w)`` [m] of the straight rope (s along it from the held
-    end, u across, w up, relative to its axis) and the rest volume per particle [m^3]."""
-    r, length = scene.rope_radius, scene.rope_length
-    x, vol = sampling.box([0.0, -r, -r], [length, r, r], scene.dx, ppc=scene.ppc, seed=0)
-    keep = x[:, 1] ** 2 + x[:, 2] ** 2 <= r * r
-    return x[keep], vol
-
-
 def held_mask(scene: WhipRopeScene) -> np.ndarray:
     """(N,) bool: the particles the gripper holds (the first ``grip_length`` of the rope);
     the same indices for every seed (NumPy, a constant under ``jit``)."""
@@ -204,15 +156,7 @@ def held_mask(scene: WhipRopeScene) -> np.ndarray:
 def _place(scene, rest, theta_fn, start):
     """Bend the reference particles onto the centre line with tangent angle ``theta_fn(s)``
     starting (s = 0, the held end) at ``start`` (2,), resting on the table."""
-    n = 257
-    s = jnp.linspace(0.0, scene.rope_length, n)
-    th = theta_fn(s)
-    ds = scene.rope_length / (n - 1)
-    mid = 0.5 * (th[1:] + th[:-1])
-    cx = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.cos(mid) * ds)])
-    cy = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.sin(mid) * ds)])
-    sp, u, w = rest[:, 0], rest[:, 1], rest[:, 2]
-    px, py, pt = jnp.interp(sp, s, cx), jnp.interp(sp, s, cy), jnp.interp(sp, s, th)
+    px, py, pt, u, w = _rope.centre_line(scene, rest, theta_fn)
     x = px - u * jnp.sin(pt) + start[0]
     y = py + u * jnp.cos(pt) + start[1]
     z = scene.table_z + scene.rope_radius + w
@@ -291,23 +235,15 @@ class WhipRope(MPMEnv):
 
     def start_heading(self, key):
         """The start's heading ``theta0`` [rad] that :meth:`init` draws from ``key``: uniform
-        in ``+-scene.heading_range``."""
-        k_head = jax.random.split(key, 4)[2]
-        h = self.spec.scene.heading_range
-        return jax.random.uniform(k_head, (), jnp.float32, minval=-h, maxval=h)
+        in ``±scene.heading_range``."""
+        return _rope.start_heading(self.spec.scene, key)
 
     def init(self, key, params):
         """A random rope shape on the table (see the module docstring), at rest, its first
         ``grip_length`` held by the gripper."""
         scene = self.spec.scene
         k_amp, k_phase, _, k_off = jax.random.split(key, 4)
-        modes = jnp.arange(1, scene.bend_modes + 1, dtype=jnp.float32)
-        # float32 draws in either precision: a seed gives the same rope under x64
-        amp = jax.random.uniform(k_amp, (scene.bend_modes,), jnp.float32, minval=-1.0,
-                                 maxval=1.0)
-        amp = amp * scene.bend_amplitude / modes
-        phase = jax.random.uniform(k_phase, (scene.bend_modes,), jnp.float32,
-                                   maxval=2 * math.pi)
+        modes, amp, phase = _rope.bend_modes(scene, k_amp, k_phase)
         theta0 = self.start_heading(key)
         offset = jax.random.uniform(k_off, (2,), jnp.float32, minval=-scene.offset_range,
                                     maxval=scene.offset_range)
@@ -426,7 +362,7 @@ def _spec() -> TaskSpec:
 
 WHIP_ROPE = _spec()
 #: The original benchmark's resolution (``make("whip_rope", resolution="reference")``):
-#: its 70 substeps per step over the same 10 ms, about its 67 particles (``ppc`` 2 for
+#: its 70 substeps per step over the same 0.01 s, about its 67 particles (``ppc`` 2 for
 #: 8), and an active window of 40 x 40 x 20 = 32000 cells for its 32^3 = 32768.
 WHIP_ROPE_REFERENCE = dataclasses.replace(WHIP_ROPE, substeps=70, scene=dataclasses.replace(
     WHIP_ROPE.scene, dt=0.01 / 70, ppc=2, window=(40, 40, 20)))

@@ -116,8 +116,8 @@ def filmstrip(frames, k: int = 5, goal_frame=None,
 
 def save_png(image, path, optimize: bool = True) -> Path:
     """Write ``image`` ((H, W, 3) uint8) to ``path`` as a PNG, atomically. ``optimize``:
-    Pillow's smallest encoding (about 10 % smaller files; ~0.4 s for a 320 x 240
-    six-frame filmstrip, so the results page's pictures turn it off)."""
+    Pillow's smallest (and slowest) encoding; pass ``False`` where many pictures are
+    written."""
     from PIL import Image
 
     path = Path(path)

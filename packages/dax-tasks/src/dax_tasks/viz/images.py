@@ -1,5 +1,7 @@
 """Image observations and rendering: a top-down height map and a top-down RGB picture of
-a task's object points and end effector, pure JAX (jit and vmap them), plus a GIF writer.
+a task's object points and end effector, pure JAX (jit and vmap them); :func:`render` and
+:func:`record_episode` give NumPy frames of an env's states (written to files by
+:mod:`dax_tasks.viz.animation`).
 
 The picture covers a fixed square *view window* of the table per task
 (:func:`view_window`): the box around the goal, the start of an episode and the end

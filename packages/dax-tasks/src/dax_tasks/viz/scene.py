@@ -380,6 +380,18 @@ class _Canvas:
         ``vertex_shade`` (F, 3) replaces the per-face Lambert by a shade per corner,
         interpolated (smooth shading). ``cull_back`` drops faces whose winding normal
         looks away from the camera (the far side of a closed, outward-wound mesh)."""
+        faces = self._shaded_faces(tris_world, colors, kinds, two_sided_kinds, vertex_colors,
+                                   vertex_shade, cull_back)
+        if faces is None:
+            return None
+        return self._rasterise(*faces, smooth=vertex_colors is not None
+                               or vertex_shade is not None)
+
+    def _shaded_faces(self, tris_world, colors, kinds, two_sided_kinds, vertex_colors,
+                      vertex_shade, cull_back):
+        """The faces :meth:`triangles` draws (in front of the near plane, not culled) as
+        ``(cam (F, 3, 3), row (F, 3), col (F, 3), corner colours (F, 3, 3), shade (F,),
+        kind (F,), depth bias (F,))``, or ``None`` if none is left."""
         tris_world = np.asarray(tris_world, np.float64)
         cam = self.view.camera(tris_world)                                 # (F, 3, 3)
         n = np.cross(tris_world[:, 1] - tris_world[:, 0],
@@ -411,6 +423,13 @@ class _Canvas:
         if vertex_shade is not None:
             vc = vc * np.asarray(vertex_shade, np.float64)[idx][..., None]
             shade = np.ones(len(idx))
+        return cam, row, col, vc, shade, kind, bias
+
+    def _rasterise(self, cam, row, col, vc, shade, kind, bias, smooth: bool):
+        """Fragments ``(flat, depth, rgb, kind)`` of the faces :meth:`_shaded_faces` gives:
+        every pixel centre inside a face, its depth interpolated perspective-correctly (plus
+        the face's bias) and its colour the face's (``smooth``: the corners' interpolated),
+        times the face's shade; ``None`` if no pixel is covered."""
         lo_c = np.clip(np.ceil(col.min(1)), 0, self.w).astype(np.int64)
         hi_c = np.clip(np.floor(col.max(1)), -1, self.w - 1).astype(np.int64)
         lo_r = np.clip(np.ceil(row.min(1)), 0, self.h).astype(np.int64)
@@ -442,7 +461,7 @@ class _Canvas:
             face = sel[si]
             inv = np.stack([wk[si, ki] for wk in w], -1) / cam[face, :, 2]    # (M, 3)
             inv_z = inv.sum(-1)
-            if vertex_colors is not None or vertex_shade is not None:
+            if smooth:
                 rgb = np.einsum("mv,mvc->mc", inv / inv_z[:, None], vc[face])
             else:
                 rgb = vc[face, 0]
