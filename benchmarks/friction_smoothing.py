@@ -18,7 +18,7 @@ import statistics
 from pathlib import Path
 
 import dax_tasks
-from dax_algos.bench.runner import run_grid
+from dax_algos.bench.grid import run_grid
 
 
 def main(argv=None) -> None:

@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from dax_algos import learner, registry
-from dax_algos.rl import apg
+from dax_algos import learner, mlp_policy, registry
+from dax_algos.rl import apg, training
 from dax_tasks.core.wrappers import training_env
 from dax_tasks.io import atomic_write
 
@@ -36,7 +36,7 @@ from dax_tasks.io import atomic_write
 def initial_gradient_norm(env, config: apg.APGConfig, key, params=None) -> float:
     """Raw global norm of APG's gradient at a fresh policy over ``config.window`` steps."""
     params = env.default_params if params is None else params
-    tparams = learner.training_params(params, config.aux_weight)
+    tparams = training.training_params(params, config.aux_weight)
     window = config.window_for(env)
     venv = training_env(env, config.num_envs)
     pnet = apg.network(env, config)
@@ -46,8 +46,8 @@ def initial_gradient_norm(env, config: apg.APGConfig, key, params=None) -> float
     def norm(k_pi, k_env, k_run):
         policy = pnet.init(k_pi)
         obs, state = venv.reset(k_env, tparams)
-        grads = jax.grad(lambda p: rollout(p, learner.ObsNorm.create(learner.feature_dim(env)), obs,
-                                           state, k_run, tparams)[0])(policy)
+        obs_norm = mlp_policy.ObsNorm.create(mlp_policy.feature_dim(env))
+        grads = jax.grad(lambda p: rollout(p, obs_norm, obs, state, k_run, tparams)[0])(policy)
         return jnp.sqrt(sum(jnp.sum(g**2) for g in jax.tree_util.tree_leaves(grads)))
 
     return float(jax.jit(norm)(k_pi, k_env, k_run))
@@ -60,9 +60,7 @@ def sweep(task: str, horizons, seeds: int, env_steps: int, base: dict | None = N
     for h in horizons:
         config = method.config("full", task, **{**(base or {}), "window": h,
                                                 "total_env_steps": env_steps})
-        episode = jax.jit(jax.vmap(learner.learner_episode(apg.make_train,
-                                                      apg.make_act(env, config), env,
-                                                      config, config.n_eval),
+        episode = jax.jit(jax.vmap(learner.learner_episode(apg.LEARNER, env, config),
                                    in_axes=(0, None)))
         keys = jax.vmap(jax.random.PRNGKey)(jnp.arange(seeds))
         out = jax.device_get(episode(keys, env.default_params))

@@ -33,6 +33,7 @@ import dax_tasks
 from dax_algos import learner, registry
 from dax_algos.bench import report
 from dax_algos.il import demos
+from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
 
 WEIGHTINGS = {
@@ -135,7 +136,7 @@ def main(argv=None) -> int:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--task", default="pour_water")
     p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--budget", default="full", choices=registry.BUDGETS)
+    p.add_argument("--budget", default="full", choices=BUDGETS)
     p.add_argument("--weightings", default=",".join(WEIGHTINGS),
                    help=f"comma-separated, of: {', '.join(WEIGHTINGS)}")
     p.add_argument("--demos", default=None, help="demonstration directory")

@@ -249,7 +249,9 @@ INNER_ARROWS = {
     "dax-data": [],
     "dax-algos": [(m, "dax_algos.bench") for m in (
         "dax_algos.rl", "dax_algos.il", "dax_algos.planning", "dax_algos.registry",
-        "dax_algos.learner", "dax_algos.common", "dax_algos.nets", "dax_algos.toy")],
+        "dax_algos.method", "dax_algos.learner", "dax_algos.actions", "dax_algos.checks",
+        "dax_algos.episode", "dax_algos.mlp_policy", "dax_algos.optim", "dax_algos.nets",
+        "dax_algos.toy")],
 }
 
 

@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from dax_algos import common, learner, toy
-from dax_algos.planning import cem_mpc
+from dax_algos import learner, toy
+from dax_algos.planning import cem_mpc, planner
 from dax_algos.rl import apg, ppo, shac
 from dax_tasks.core.wrappers import training_env
 
@@ -92,7 +92,7 @@ def env_job(env, batch, out, info, tag, rollout=True):
 
 
 def cem_job(env, out, info):
-    value = common.make_objective(env, "final")
+    value = planner.make_objective(env, "final")
     _, state = jax.jit(env.reset)(jax.random.PRNGKey(2))
     config = cem_mpc.CEMConfig(population=8, elites=2, iterations=2, horizon=2)
 
@@ -120,8 +120,7 @@ RL = {
 def rl_job(out, info):
     env = toy.point_reach(horizon=5)
     for name, (module, config) in RL.items():
-        episode = jax.jit(learner.learner_episode(module.make_train, module.make_act(env, config),
-                                             env, config, config.n_eval))
+        episode = jax.jit(learner.learner_episode(module.LEARNER, env, config))
         key = jax.random.PRNGKey(0)
         episode, talks = compiled(episode, key, env.default_params)
         res = episode(key, env.default_params)

@@ -72,8 +72,7 @@ def cheap_cloth_overrides(name="fold_cloth1", **extra):
 def make_nan_planner(task, config):
     """A broken planner for the runner's tests: random actions times NaN (the task's
     finite flag turns false, so its rows must be ``failed``)."""
-    from dax_algos import common
-    from dax_algos.planning import reference
+    from dax_algos.planning import planner, reference
 
     rnd = reference.make_random(task, config)
 
@@ -81,15 +80,15 @@ def make_nan_planner(task, config):
         action, pstate, stats = rnd.plan(pstate, env_state, key, params)
         return action * jnp.nan, pstate, stats
 
-    return common.Planner(init=rnd.init, plan=plan)
+    return planner.Planner(init=rnd.init, plan=plan)
 
 
 def register_nan_planner(overwrite: bool = False) -> None:
     """Register :func:`make_nan_planner` as the method ``nan_actions`` (unregister it with
     ``registry.unregister("nan_actions")``)."""
-    from dax_algos import registry
+    from dax_algos import method, registry
     from dax_algos.planning import reference
 
-    registry.register(registry.planner_method(
-        "nan_actions", "reference", reference.RandomConfig, make_nan_planner, {}),
-        overwrite=overwrite)
+    registry.register(method.PlannerMethod(
+        name="nan_actions", family="reference", config_cls=reference.RandomConfig,
+        make_planner=make_nan_planner), overwrite=overwrite)

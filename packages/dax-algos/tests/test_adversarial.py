@@ -8,7 +8,9 @@ import pytest
 from algos_helpers import cheap_cloth_overrides
 
 import dax_tasks
-from dax_algos.bench import runner
+from dax_algos.bench import rundir, runner
+from dax_algos.bench.grid import run_grid
+from dax_algos.bench.rows import COLUMNS
 from dax_tasks import io
 
 TASK = "fold_cloth1"
@@ -60,8 +62,8 @@ def test_unwritable_directory_is_refused_before_the_first_episode(tmp_path, caps
 @pytest.mark.parametrize("content, problem", [
     (b"\xff\xfe\x00garbage\n", "not UTF-8 text"),
     (b"a,b,c\n1,2,3\n", "columns ['a', 'b', 'c']"),
-    (",".join(runner.COLUMNS).encode() + b"\n" + b"fold_cloth1,random,x,quick,ok"
-     + b"," * (len(runner.COLUMNS) - 5) + b"\n", "seed 'x' is not an integer"),
+    (",".join(COLUMNS).encode() + b"\n" + b"fold_cloth1,random,x,quick,ok"
+     + b"," * (len(COLUMNS) - 5) + b"\n", "seed 'x' is not an integer"),
 ])
 def test_garbled_results_file_is_refused_naming_it_and_left_alone(tmp_path, capsys, no_work,
                                                                    content, problem):
@@ -80,17 +82,17 @@ def test_a_second_runner_on_the_same_results_is_refused(tmp_path, capsys, no_wor
 def test_other_overrides_on_the_same_out_are_refused_not_answered_with_old_rows(tmp_path):
     small = cheap_cloth_overrides(horizon=2)
     kw = dict(seeds=1, out=tmp_path, quick=True, cache_goal=False, progress=False)
-    rows = runner.run_grid(TASK, "random", task_overrides={TASK: small}, **kw)
+    rows = run_grid(TASK, "random", task_overrides={TASK: small}, **kw)
     assert [r["status"] for r in rows] == ["ok"], rows
-    assert runner.run_grid(TASK, "random", task_overrides={TASK: small}, **kw) == rows
+    assert run_grid(TASK, "random", task_overrides={TASK: small}, **kw) == rows
     other = dict(small, horizon=3)
     with pytest.raises(ValueError, match=f"{tmp_path}: holds results made with other task "
                                          f"overrides .*horizon.*2.*horizon.*3"):
-        runner.run_grid(TASK, "random", task_overrides={TASK: other}, **kw)
+        run_grid(TASK, "random", task_overrides={TASK: other}, **kw)
     with pytest.raises(ValueError, match="other method overrides"):
-        runner.run_grid(TASK, "random", task_overrides={TASK: small},
+        run_grid(TASK, "random", task_overrides={TASK: small},
                        method_overrides={"random": {"x": 1}}, **kw)
     # a results directory from before run files holds runs without overrides
-    (tmp_path / runner.RUN_FILE).unlink()
+    (tmp_path / rundir.RUN_FILE).unlink()
     with pytest.raises(ValueError, match="other task overrides"):
-        runner.run_grid(TASK, "random", task_overrides={TASK: small}, **kw)
+        run_grid(TASK, "random", task_overrides={TASK: small}, **kw)

@@ -7,14 +7,16 @@ import pytest
 from algos_helpers import cheap_cloth_overrides, register_nan_planner
 
 from dax_algos import registry
-from dax_algos.bench import runner
+from dax_algos.bench import execute, runner
+from dax_algos.bench.grid import resolve_methods, resolve_tasks, run_grid
+from dax_algos.bench.rows import COLUMNS, append_row, read_rows
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,diff_mpc"
 
 
 def _run(out, seeds=2, **kw):
-    return runner.run_grid(
+    return run_grid(
         TASK, METHODS, seeds=seeds, out=out, quick=True,
         task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
         method_overrides={"cem_mpc": dict(population=6, elites=2, iterations=1),
@@ -36,7 +38,7 @@ def test_runner_writes_csv_markdown_and_charts(grid):
     out, rows = grid
     with open(out / "results.csv") as f:
         header = next(csv.reader(f))
-    assert tuple(header) == runner.COLUMNS
+    assert tuple(header) == COLUMNS
     assert len(rows) == 10, rows
     md = (out / "results.md").read_text()
     assert f"| method | {TASK} |" in md, md
@@ -79,8 +81,8 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
     out, rows = grid
     before = (out / "results.csv").read_text()
     calls = []
-    original = runner._run_method
-    monkeypatch.setattr(runner, "_run_method",
+    original = execute.run_method
+    monkeypatch.setattr(execute, "run_method",
                         lambda *a, **k: calls.append(a[2:4]) or original(*a, **k))
     register_nan_planner(overwrite=True)
     again = _run(out)
@@ -94,22 +96,22 @@ def test_second_invocation_skips_finished_rows(grid, monkeypatch):
 
 def test_incomplete_last_line_is_dropped(tmp_path):
     path = tmp_path / "results.csv"
-    runner.append_row(path, {"task": TASK, "method": "random", "seed": 0, "budget": "quick",
+    append_row(path, {"task": TASK, "method": "random", "seed": 0, "budget": "quick",
                             "status": "ok", "score": 0.5})
     with open(path, "a") as f:
         f.write("fold_cloth1,random,1,qu")  # an interrupted write
-    rows = runner.read_rows(path)
+    rows = read_rows(path)
     assert [r["seed"] for r in rows] == ["0"]
     assert path.read_text().endswith("\n")
 
 
 def test_unknown_names_raise_value_error_listing_valid_ones():
     with pytest.raises(ValueError, match="unknown task 'nope'.*push_rope"):
-        runner.resolve_tasks("push_rope,nope")
+        resolve_tasks("push_rope,nope")
     with pytest.raises(ValueError, match="unknown method 'nope'.*cem_mpc"):
-        runner.resolve_methods("cem_mpc,nope")
+        resolve_methods("cem_mpc,nope")
     with pytest.raises(ValueError, match="seeds"):
-        runner.run_grid(TASK, "random", seeds=0)
+        run_grid(TASK, "random", seeds=0)
 
 
 def test_cli_unknown_name_is_a_one_line_error_with_exit_2(tmp_path, capsys):

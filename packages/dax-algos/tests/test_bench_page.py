@@ -16,7 +16,8 @@ from algos_helpers import cheap_cloth_overrides, register_nan_planner
 from PIL import Image
 
 from dax_algos import registry
-from dax_algos.bench import episodes, page, runner
+from dax_algos.bench import episodes, page, rundir, runner, summary
+from dax_algos.bench.grid import run_grid
 
 TASK = "fold_cloth1"
 METHODS = "random,expert,nan_actions,cem_mpc,ppo"
@@ -25,7 +26,7 @@ PPO = dict(total_env_steps=48, num_envs=8, unroll_length=2, minibatches=2, n_eva
 
 
 def _run(out, seeds=2):
-    return runner.run_grid(
+    return run_grid(
         TASK, METHODS, seeds=seeds, out=out, quick=True,
         task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
         method_overrides={"cem_mpc": dict(population=6, elites=2, iterations=1),
@@ -196,7 +197,7 @@ def test_rows_without_a_recording_still_report(grid, tmp_path):
     for p in (old / episodes.DIR).rglob("*"):  # a results directory from before recordings
         if p.is_file():
             p.unlink()
-    runner.report_dir(old)
+    summary.report_dir(old)
     text = (old / page.PAGE).read_text()
     assert "was not recorded" in text and "<img src=\"episodes/" not in text
     assert _parse(old / page.PAGE).tables["scores"][1][0][1] == TASK
@@ -255,7 +256,7 @@ def test_resumed_run_adds_nothing_and_more_seeds_update_the_page(grid, monkeypat
     out, rows = grid
     files = [p for p in out.rglob("*") if p.is_file() and not re.match(r"seed\d+-", p.name)]
     page_before = (out / page.PAGE).read_bytes()
-    run_file = (out / runner.RUN_FILE).read_text()
+    run_file = (out / rundir.RUN_FILE).read_text()
     drawn = []
     original = episodes.render_picture
     monkeypatch.setattr(episodes, "render_picture",
@@ -263,7 +264,7 @@ def test_resumed_run_adds_nothing_and_more_seeds_update_the_page(grid, monkeypat
     register_nan_planner(overwrite=True)
     assert _run(out) == rows
     assert drawn == [] and (out / page.PAGE).read_bytes() == page_before
-    assert (out / runner.RUN_FILE).read_text() == run_file
+    assert (out / rundir.RUN_FILE).read_text() == run_file
     recordings = sorted((out / episodes.DIR).rglob("*.npz"))
     assert len(recordings) == len(rows)
     # one more seed: its recordings, one more command in run.json, the page updated; each
@@ -271,7 +272,7 @@ def test_resumed_run_adds_nothing_and_more_seeds_update_the_page(grid, monkeypat
     more = _run(out, seeds=3)
     assert len(more) == len(rows) + 5
     assert len(sorted((out / episodes.DIR).rglob("*.npz"))) == len(more)
-    assert len(json.loads((out / runner.RUN_FILE).read_text())["invocations"]) == 2
+    assert len(json.loads((out / rundir.RUN_FILE).read_text())["invocations"]) == 2
     assert (out / page.PAGE).read_bytes() != page_before
     for d in (out / episodes.DIR / TASK).iterdir():
         assert len(list(d.glob("seed*-*.gif"))) == (0 if d.name == "nan_actions" else 1), d

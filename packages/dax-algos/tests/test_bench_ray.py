@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from algos_helpers import cheap_cloth_overrides
 
-from dax_algos.bench import backends, episodes, learning, policy_io, runner
+from dax_algos.bench import backends, episodes, grid, learning, policy_io
+from dax_algos.bench.rows import COLUMNS
 
 ray = pytest.importorskip("ray", reason="needs Ray: pip install 'dax-algos[ray]' "
                                         "(nox -s ray runs these tests)")
@@ -24,7 +25,7 @@ TIMINGS = ("wall_s", "compile_s")
 
 
 def _run(out, backend, seeds=2):
-    return runner.run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
+    return grid.run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
                           task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
                           method_overrides={"ppo": PPO}, cache_goal=False, progress=False,
                           backend=backend)
@@ -56,7 +57,7 @@ def test_ray_rows_equal_local_rows_but_for_timings(grids):
     assert local.keys() == remote.keys()
     for key, row in local.items():
         assert row["status"] == "ok", row
-        for col in runner.COLUMNS:
+        for col in COLUMNS:
             if col not in TIMINGS:
                 assert remote[key][col] == row[col], (key, col, row[col], remote[key][col])
         assert float(remote[key]["wall_s"]) > 0 and float(remote[key]["compile_s"]) > 0
@@ -113,7 +114,7 @@ def test_ray_resume_runs_only_the_missing_seeds(grids, monkeypatch):
 def test_killed_ray_driver_keeps_finished_rows_and_resumes(grids, tmp_path, monkeypatch):
     (_, local), _ = grids
     recorded = []
-    original = runner.record
+    original = grid.record
 
     def record_then_die(out, result):  # the driver is killed after its second row
         original(out, result)
@@ -121,13 +122,13 @@ def test_killed_ray_driver_keeps_finished_rows_and_resumes(grids, tmp_path, monk
         if len(recorded) == 2:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "record", record_then_die)
+    monkeypatch.setattr(grid, "record", record_then_die)
     with pytest.raises(KeyboardInterrupt):
         _run(tmp_path, "ray")
     with open(tmp_path / "results.csv") as f:
         kept = list(csv.DictReader(f))
     assert len(kept) == 2
-    monkeypatch.setattr(runner, "record", original)
+    monkeypatch.setattr(grid, "record", original)
     rows = _run(tmp_path, "ray")  # the lock was released; the rest runs
     assert _by_run(rows).keys() == _by_run(local).keys()
     assert rows[:2] == kept

@@ -10,8 +10,9 @@ import pytest
 from algos_helpers import cheap_cloth_overrides
 
 import dax_tasks
-from dax_algos import learner
-from dax_algos.bench import learning, runner, trained
+from dax_algos import method, mlp_policy
+from dax_algos.bench import execute, learning, trained
+from dax_algos.bench.grid import run_grid
 
 TASK = "fold_cloth1"
 METHODS = "ppo,apg,shac"
@@ -23,7 +24,7 @@ TINY = {"ppo": dict(total_env_steps=48, num_envs=8, unroll_length=2, minibatches
 
 
 def _run(out, seeds=2):
-    return runner.run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
+    return run_grid(TASK, METHODS, seeds=seeds, out=out, quick=True,
                           task_overrides={TASK: cheap_cloth_overrides(horizon=2)},
                           method_overrides=TINY, cache_goal=False, progress=False)
 
@@ -70,7 +71,7 @@ def test_policy_file_reloads_and_is_refused_for_another_task(grid):
     env = dax_tasks.make(TASK, cache_goal=False, **cheap_cloth_overrides(horizon=2))
     act, policy = trained.load_trained(path, env, "ppo")
     obs, state = env.reset(jax.random.PRNGKey(0))
-    z = act(policy, learner.features(obs, state.t, env.horizon))
+    z = act(policy, mlp_policy.features(obs, state.t, env.horizon))
     assert z.shape == (env.spec.action_dim,) and np.all(np.abs(np.asarray(z)) <= 1)
     other = dax_tasks.make(TASK, cache_goal=False, **cheap_cloth_overrides(horizon=3))
     with pytest.raises(ValueError, match="task_fingerprint"):
@@ -88,7 +89,7 @@ def test_resume_runs_nothing_twice(grid, monkeypatch):
     before = (out / "results.csv").read_text()
     curves_before = learning.learning_path(out, TASK).read_text()
     calls = []
-    monkeypatch.setattr(runner, "_learner_result", lambda *a, **k: calls.append(a[2]))
+    monkeypatch.setattr(execute, "learner_result", lambda *a, **k: calls.append(a[2]))
     again = _run(out)
     assert calls == [] and len(again) == len(rows)
     assert (out / "results.csv").read_text() == before
@@ -104,4 +105,5 @@ def test_budgets_are_stated_in_env_steps():
         quick, full = m.config("quick", TASK), m.config("full", TASK)
         assert quick.total_env_steps < full.total_env_steps
         r = m.build(env, dataclasses.replace(quick))
-        assert r.learns and 0 < r.train_env_steps <= quick.total_env_steps
+        assert isinstance(r, method.LearnerRunnable)
+        assert 0 < r.train_env_steps <= quick.total_env_steps

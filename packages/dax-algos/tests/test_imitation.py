@@ -14,9 +14,10 @@ from algos_helpers import cheap_cloth_overrides
 
 import dax_data
 import dax_tasks
-from dax_algos import common, learner, registry, toy
-from dax_algos.bench import runner, trained
+from dax_algos import actions, mlp_policy, registry, toy
+from dax_algos.bench import grid, trained
 from dax_algos.il import demos, ild, transporter
+from dax_algos.method import NotApplicable
 
 # ----------------------------------------------------------------------------- Transporter
 
@@ -84,7 +85,7 @@ def test_matmul_conv_equals_xla_convolution(stride, k):
 
 
 def test_transporter_does_not_apply_to_low_level_tasks():
-    with pytest.raises(common.NotApplicable, match="macro-action task"):
+    with pytest.raises(NotApplicable, match="macro-action task"):
         registry.get("transporter").build(toy.point_reach(), registry.get(
             "transporter").config("quick"))
 
@@ -112,8 +113,8 @@ def _trajectory(env, config, policy, key):
     _, state = env.reset(key)
 
     def body(s, _):
-        z = act(policy, learner.features(env.observe(s.physics), s.t, env.horizon))
-        _, s2, _, _, _ = env.step(s, common.to_action(env, z))
+        z = act(policy, mlp_policy.features(env.observe(s.physics), s.t, env.horizon))
+        _, s2, _, _, _ = env.step(s, actions.to_action(env, z))
         return s2, env.object_points(s2.physics)
 
     return jax.lax.scan(body, state, None, length=env.horizon)[1]
@@ -238,7 +239,7 @@ def test_runner_makes_demonstrations_trains_evaluates_and_keeps_policies(tmp_pat
                                 "ild": dict(total_env_steps=16, num_envs=2, n_eval=2,
                                             policy_hidden=(16,))},
               cache_goal=False, progress=False, demo_dir=demo_dir)
-    rows = runner.run_grid("fold_cloth1", "transporter,ild", **kw)
+    rows = grid.run_grid("fold_cloth1", "transporter,ild", **kw)
     assert [(r["method"], r["status"]) for r in rows] == [("transporter", "ok"),
                                                            ("ild", "ok")], rows
     files = sorted(p.name for p in demo_dir.glob("*.h5"))

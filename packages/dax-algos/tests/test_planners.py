@@ -9,8 +9,9 @@ import pytest
 from algos_helpers import ToyTask, cheap_cloth_overrides
 
 import dax_algos
-from dax_algos import common
+from dax_algos import actions
 from dax_algos.planning import cem_mpc, diff_cem_mpc, diff_mpc, reference
+from dax_algos.planning.planner import episode_env_steps, make_episode, make_objective
 
 
 @pytest.fixture
@@ -26,7 +27,7 @@ def cheap_fold():
 
 
 def _scores(task, planner, seeds):
-    episode = jax.jit(common.make_episode(task, planner))
+    episode = jax.jit(make_episode(task, planner))
     params = task.default_params
     return np.asarray([float(episode(jax.random.PRNGKey(s), params).score) for s in seeds])
 
@@ -76,10 +77,10 @@ def test_diff_mpc_gradient_needs_contact_adjustment(contact_adjustment):
     task = dax_tasks.make("fold_cloth1", cache_goal=False, **cheap_cloth_overrides(
         contact_adjustment=contact_adjustment))
     _, state = jax.jit(task.reset)(jax.random.PRNGKey(0))
-    value = common.make_objective(task, "final")
+    value = make_objective(task, "final")
     params = task.default_params
     z0 = _missing_pick(task)
-    pick = common.to_action(task, z0[0])[:2]
+    pick = actions.to_action(task, z0[0])[:2]
     assert float(jnp.min(jnp.linalg.norm(state.physics.x[:, :2] - pick, axis=1))) > 0.03
     cfg = dax_algos.DiffMPCConfig(steps=1, horizon=1)
     _, _, stats = jax.jit(lambda z: diff_mpc.gradient_refine(
@@ -139,16 +140,16 @@ def test_configs_reject_bad_values():
 def test_env_step_counts_include_planning_rollouts(toy):
     cfg = dax_algos.CEMConfig(population=8, elites=2, iterations=3, horizon=2)
     planner = cem_mpc.make_planner(toy, cfg)
-    assert common.episode_env_steps(toy, planner) == (toy.horizon * (3 * 8 * 2 + 1), 0)
+    assert episode_env_steps(toy, planner) == (toy.horizon * (3 * 8 * 2 + 1), 0)
     d = diff_mpc.make_planner(toy, dax_algos.DiffMPCConfig(steps=5, horizon=2))
-    assert common.episode_env_steps(toy, d) == (toy.horizon * (6 * 2 + 1), toy.horizon * 10)
+    assert episode_env_steps(toy, d) == (toy.horizon * (6 * 2 + 1), toy.horizon * 10)
 
 
 def test_episode_is_deterministic_and_vmaps_over_seeds(toy):
     cfg = dax_algos.DiffCEMConfig(cem=dax_algos.CEMConfig(population=4, elites=2,
                                                           iterations=1, horizon=2),
                                   diff=dax_algos.DiffMPCConfig(steps=2))
-    episode = common.make_episode(toy, diff_cem_mpc.make_planner(toy, cfg))
+    episode = make_episode(toy, diff_cem_mpc.make_planner(toy, cfg))
     keys = jnp.stack([jax.random.PRNGKey(s) for s in (0, 1, 0)])
     batched = jax.jit(jax.vmap(episode, in_axes=(0, None)))(keys, toy.default_params)
     np.testing.assert_array_equal(np.asarray(batched.actions[0]), np.asarray(batched.actions[2]))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dax_algos import learner, toy
-from dax_algos.rl import apg, ppo, shac
+from dax_algos.rl import apg, ppo, shac, training
 
 CONFIGS = {
     "ppo": (ppo, ppo.PPOConfig(total_env_steps=20_000, num_envs=16, unroll_length=10,
@@ -35,8 +35,7 @@ def optimum(env):
 @pytest.mark.parametrize("name", list(CONFIGS))
 def test_method_learns_the_toy_task_deterministically(env, optimum, name):
     module, config = CONFIGS[name]
-    episode = jax.jit(learner.learner_episode(module.make_train, module.make_act(env, config), env,
-                                         config, config.n_eval))
+    episode = jax.jit(learner.learner_episode(module.LEARNER, env, config))
     out = episode(jax.random.PRNGKey(0), env.default_params)
     ret = float(jnp.sum(out.episode.r_gt))  # mean return of the 20 evaluation rollouts
     assert ret >= 0.9 * optimum, f"{name}: return {ret:.3f}, optimum {optimum:.3f}"
@@ -51,8 +50,7 @@ def test_method_learns_the_toy_task_deterministically(env, optimum, name):
 def test_seeds_vmap_and_differ(env):
     module, config = CONFIGS["apg"]
     config = apg.APGConfig(**{**vars(config), "total_env_steps": 400, "n_eval": 2})
-    episode = learner.learner_episode(module.make_train, module.make_act(env, config), env,
-                                 config, config.n_eval)
+    episode = learner.learner_episode(module.LEARNER, env, config)
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     batched = jax.jit(jax.vmap(episode, in_axes=(0, None)))(keys, env.default_params)
     single = jax.jit(episode)(keys[1], env.default_params)
@@ -73,8 +71,7 @@ def test_nonfinite_gradients_are_counted_and_skipped(env, name):
     assert int(np.sum(metrics.nonfinite)) == updates
     assert not np.any(np.isfinite(np.asarray(metrics.grad_norm)))
     # every update was skipped: the policy is still its initialisation
-    net = (module.networks(env, config)[0] if hasattr(module, "networks")
-           else module.network(env, config))
+    net = module.LEARNER.network(env, config)
     k_pi = jax.random.split(jax.random.PRNGKey(3), 4 if name == "shac" else 3)[0]
     init = jax.jit(net.init)(k_pi)  # as inside the jitted train
     chex.assert_trees_all_equal(policy.params, init)
@@ -83,7 +80,7 @@ def test_nonfinite_gradients_are_counted_and_skipped(env, name):
 
 
 def test_training_reward_has_aux_and_evaluation_does_not(env):
-    params = learner.training_params(env.default_params, 1.0)
+    params = training.training_params(env.default_params, 1.0)
     _, state = env.reset(jax.random.PRNGKey(0), params)
     _, _, reward, _, info = env.step(state, jnp.zeros(3), params)
     assert float(reward) == pytest.approx(float(info["r_gt"] + info["r_aux"]))
@@ -104,18 +101,3 @@ def test_bad_config_is_refused(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):
         cls(**kwargs)
 
-
-def test_td_lambda_matches_a_direct_computation():
-    rng = np.random.default_rng(0)
-    r, v = rng.normal(size=(5, 2)), rng.normal(size=(5, 2))
-    done = np.zeros((5, 2), bool)
-    done[2, 0] = True
-    last = rng.normal(size=2)
-    g = np.asarray(learner.td_lambda(jnp.asarray(r), jnp.asarray(v), jnp.asarray(done),
-                                jnp.asarray(last), 0.9, 0.8))
-    want = np.zeros((5, 2))
-    nxt_g, vals = last.copy(), np.vstack([v[1:], last[None]])
-    for t in reversed(range(5)):
-        want[t] = r[t] + 0.9 * (1 - done[t]) * (0.2 * vals[t] + 0.8 * nxt_g)
-        nxt_g = want[t]
-    np.testing.assert_allclose(g, want, rtol=1e-5)

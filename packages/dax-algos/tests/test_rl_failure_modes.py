@@ -14,8 +14,8 @@ import pytest
 from algos_helpers import cheap_cloth_overrides
 
 import dax_tasks
-from dax_algos import common, learner
-from dax_algos.rl import apg
+from dax_algos import actions, mlp_policy
+from dax_algos.rl import apg, training
 from dax_tasks.core.wrappers import training_env
 
 
@@ -58,19 +58,19 @@ def test_apg_policy_gradient_is_exactly_zero_when_its_picks_miss(cloth):
     policy = pnet.init(jax.random.PRNGKey(0))
     venv = training_env(cloth, config.num_envs)
     rollout = apg.make_rollout(cloth, venv, pnet, config, cloth.horizon)
-    params = learner.training_params(cloth.default_params, config.aux_weight)
+    params = training.training_params(cloth.default_params, config.aux_weight)
     obs, state = venv.reset(jax.random.PRNGKey(1), params)
     # bias the output layer so that the policy's action is a pick that misses both cloths
-    z = common.to_normalised(cloth, _missing_pick(cloth, state.physics.x))
+    z = actions.to_normalised(cloth, _missing_pick(cloth, state.physics.x))
     last = policy["mean"]["layers"][len(config.policy_hidden)]
     last["bias"][...] = jnp.arctanh(jnp.clip(z, -0.999, 0.999))
-    norm = learner.ObsNorm.create(learner.feature_dim(cloth))
+    norm = mlp_policy.ObsNorm.create(mlp_policy.feature_dim(cloth))
     grads = jax.jit(jax.grad(lambda p: rollout(p, norm, obs, state, jax.random.PRNGKey(2),
                                                params)[0]))(policy)
     leaves = jax.tree_util.tree_leaves(grads)
     assert all(np.all(np.asarray(g) == 0.0) for g in leaves)
     # the auxiliary (contact) reward is what gives such a policy a gradient
-    params_aux = learner.training_params(cloth.default_params, 1.0)
+    params_aux = training.training_params(cloth.default_params, 1.0)
     grads_aux = jax.jit(jax.grad(lambda p: rollout(p, norm, obs, state, jax.random.PRNGKey(2),
                                                    params_aux)[0]))(policy)
     assert max(float(jnp.max(jnp.abs(g))) for g in jax.tree_util.tree_leaves(grads_aux)) > 0

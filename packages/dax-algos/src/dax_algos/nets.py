@@ -112,6 +112,7 @@ class Network:
 
 def policy_network(obs_dim: int, act_dim: int, hidden: tuple, activation: str = "swish",
                    init_log_std: float = -0.5, layer_norm: bool = False) -> Network:
+    """A :class:`GaussianPolicy` ``obs_dim -> (mean, log_std)`` of ``act_dim`` actions."""
     return Network(lambda rngs: GaussianPolicy(obs_dim, act_dim, tuple(hidden), activation,
                                                rngs, init_log_std, layer_norm),
                    name=f"policy {obs_dim}->{tuple(hidden)}->{act_dim}")
@@ -119,6 +120,8 @@ def policy_network(obs_dim: int, act_dim: int, hidden: tuple, activation: str = 
 
 def value_network(obs_dim: int, hidden: tuple, activation: str = "swish",
                   layer_norm: bool = False) -> Network:
+    """An :class:`MLP` ``obs_dim -> 1`` (a value function)."""
+
     def make(rngs):
         return MLP(obs_dim, tuple(hidden), 1, activation, rngs, layer_norm=layer_norm)
 

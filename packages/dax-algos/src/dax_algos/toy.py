@@ -1,4 +1,4 @@
-"""A smooth analytic toy task for checking learners in seconds: a point reaching a goal.
+"""A smooth analytic toy task for checking learners: a point reaching a goal.
 
 ``PointReach`` is a :class:`dax_tasks.Env` like the nine tasks (same reset/step, params,
 wrappers, rewards), but its physics is one line: the point ``x`` (3,) [m] moves by

@@ -1,12 +1,13 @@
 """Running the benchmark grid on a Ray cluster (``dax-bench run --backend ray``).
 
-Every (task, method, seed) still to run is one Ray task, :func:`dax_algos.bench.runner.run_one`,
-called with plain data (names, seed, budget, overrides): the worker builds the task and the
-method itself, compiles and runs that one seed, writes nothing and returns a
-:class:`dax_algos.bench.runner.SeedResult` (the row, the episode's actions, the learning curve, the
-policy's arrays). The driver, which holds the output directory's lock, records each result
-as its task finishes (:func:`dax_algos.bench.runner.record`: one atomic append per row), so a
-killed driver loses no finished row and the same command resumes. The pictures of the
+Every (task, method, seed) still to run is one Ray task,
+:func:`dax_algos.bench.execute.run_one`, called with plain data (names, seed, budget,
+overrides): the worker builds the task and the method itself, compiles and runs that one
+seed, writes nothing and returns a :class:`dax_algos.bench.execute.SeedResult` (the row,
+the episode's actions, the learning curve, the policy's arrays). The driver, which holds
+the output directory's lock, records each result as its task finishes (the ``finished``
+callback of :func:`run_ray`; :func:`dax_algos.bench.grid.record`: one atomic append per
+row), so a killed driver loses no finished row and the same command resumes. The pictures of the
 results page are drawn by the driver at the end, from the recorded episodes.
 
 Ray is an optional dependency (``pip install 'dax-algos[ray]'``), imported only here and
@@ -20,6 +21,8 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable, Mapping
+
+from .execute import error_text, failed, run_one
 
 #: environment variables of the driver that the workers get too (when set): JAX's
 #: persistent compilation cache, so that workers reuse compiled programs
@@ -56,8 +59,6 @@ def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mappin
     if not todo:
         return
     ray = require_ray()
-    from .runner import SeedResult, _error_text, _row, run_one
-
     started = not ray.is_initialized()
     if started:
         ray.init(address=address)
@@ -79,13 +80,11 @@ def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mappin
                 try:
                     result = ray.get(ref)
                 except ray.exceptions.RayTaskError as err:  # raised in run_one itself
-                    cause = getattr(err, "cause", None) or err
-                    result = SeedResult(_row(t, m, s, budget, status="failed",
-                                             error=_error_text(cause)))
+                    result = failed(t, m, s, budget, getattr(err, "cause", None) or err)
                 except ray.exceptions.RayError as err:  # the cluster lost it: not recorded
                     lost.append((t, m, s))
                     print(f"dax-bench: {t} / {m} / seed {s} was lost "
-                          f"({_error_text(err)}); run again to retry it", file=sys.stderr)
+                          f"({error_text(err)}); run again to retry it", file=sys.stderr)
                     continue
                 finished(result)
         if lost:

@@ -36,5 +36,6 @@ def append(path, text: str) -> None:
 
 
 def is_empty(path) -> bool:
+    """No file at ``path``, or an empty one (a writer starts it with the header)."""
     path = Path(path)
     return not path.exists() or path.stat().st_size == 0

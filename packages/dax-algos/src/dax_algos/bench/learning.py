@@ -28,6 +28,7 @@ COLUMNS = ("task", "method", "seed", "budget", "update", "env_steps", "wall_s", 
 
 
 def learning_path(out_dir, task) -> Path:
+    """``out_dir/learning_<task>.csv``."""
     return Path(out_dir) / f"learning_{task}.csv"
 
 
@@ -104,6 +105,8 @@ def curve_bands(rows, x: str, points: int = 50) -> dict:
 
 
 def charts(rows, out_dir, method_order=()) -> list[Path]:
+    """Write ``learning_<task>.png`` for each task in ``rows`` (see the module docstring;
+    methods in ``method_order`` first); returns the paths."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -74,7 +74,7 @@ def _e(text) -> str:
 
 
 def _num(v, fmt="{:.3g}") -> str:
-    x = report._float(v)
+    x = report.as_float(v)
     return "" if math.isnan(x) else fmt.format(x)
 
 
@@ -100,8 +100,8 @@ def _table(head: Sequence[str], body: Iterable[Sequence], name_cols: int = 1,
 def best_methods(rows, task: str) -> set:
     """The methods with the highest mean score on ``task`` (finished runs; ties: all)."""
     means = {}
-    for (t, m), rs in report._group(rows).items():
-        ok = [report._float(r["score"]) for r in rs if r["status"] == "ok"]
+    for (t, m), rs in report.group_rows(rows).items():
+        ok = [report.as_float(r["score"]) for r in rs if r["status"] == "ok"]
         ok = [x for x in ok if math.isfinite(x)]
         if t == task and ok:
             means[m] = float(np.mean(ok))
@@ -113,7 +113,7 @@ def best_methods(rows, task: str) -> set:
 
 def score_table(rows, tasks, methods) -> list[str]:
     """One row per task, one column per method; the best mean of each task marked."""
-    groups = report._group(rows)
+    groups = report.group_rows(rows)
     body = []
     for t in tasks:
         best = best_methods(rows, t)
@@ -123,7 +123,7 @@ def score_table(rows, tasks, methods) -> list[str]:
             if not rs:
                 cells.append("")
                 continue
-            text = report._cell(rs)
+            text = report.score_cell(rs)
             if m in best:
                 cells.append(("★ " + text, "best"))
             elif text == "failed":
@@ -135,7 +135,9 @@ def score_table(rows, tasks, methods) -> list[str]:
 
 
 def compute_table(rows, tasks, methods) -> list[str]:
-    groups = report._group(rows)
+    """HTML lines: per (task, method) the finished runs and the means of their wall time,
+    compile time, simulated and differentiated environment steps."""
+    groups = report.group_rows(rows)
     body = []
     for t in tasks:
         for m in methods:
@@ -145,7 +147,7 @@ def compute_table(rows, tasks, methods) -> list[str]:
                 continue
 
             def mean(col, fmt, ok=ok):
-                xs = [report._float(r[col]) for r in ok]
+                xs = [report.as_float(r[col]) for r in ok]
                 xs = [x for x in xs if math.isfinite(x)]
                 return fmt.format(float(np.mean(xs))) if xs else ""
 
@@ -157,27 +159,31 @@ def compute_table(rows, tasks, methods) -> list[str]:
 
 
 def gradient_table(rows, tasks, methods) -> list[str]:
+    """HTML lines: per (task, method) that reports gradients, the largest and the mean raw
+    gradient norm over its runs and the non-finite gradient steps."""
     grads = [r for r in rows if r.get("grad_norm") not in ("", None)
              and r["status"] != "skipped"]
     if not grads:
         return ['<p class="note">No method here differentiates through the simulator.</p>']
-    groups = report._group(grads)
+    groups = report.group_rows(grads)
     body = []
     for t in tasks:
         for m in methods:
             rs = groups.get((t, m))
             if not rs:
                 continue
-            gmax = max(report._float(r["grad_norm"]) for r in rs)
-            means = [report._float(r["grad_norm_mean"]) for r in rs]
+            gmax = max(report.as_float(r["grad_norm"]) for r in rs)
+            means = [report.as_float(r["grad_norm_mean"]) for r in rs]
             means = [x for x in means if math.isfinite(x)]
-            bad = sum(int(report._float(r["nonfinite_grads"]) or 0) for r in rs)
+            bad = sum(int(report.as_float(r["nonfinite_grads"]) or 0) for r in rs)
             body.append([t, m, _num(gmax), _num(np.mean(means)) if means else "", str(bad)])
     return _table(["task", "method", "max over runs", "mean", "non-finite gradient steps"],
                   body, name_cols=2, table_id="gradients")
 
 
 def problem_table(rows, tasks, methods) -> list[str]:
+    """HTML lines: the failed and skipped runs with their causes, in task and method
+    order."""
     bad = [r for r in rows if r["status"] in ("failed", "skipped")]
     if not bad:
         return ['<p class="note">None: every run finished.</p>']
@@ -195,9 +201,9 @@ def problem_table(rows, tasks, methods) -> list[str]:
 def compute_seconds(rows) -> float:
     """The run's compute [s] as its rows record it: every row's ``wall_s`` plus each
     (task, method)'s compilation once per distinct ``compile_s`` (a run's seeds share one)."""
-    wall = sum(x for x in (report._float(r["wall_s"]) for r in rows) if math.isfinite(x))
+    wall = sum(x for x in (report.as_float(r["wall_s"]) for r in rows) if math.isfinite(x))
     compiles = {(r["task"], r["method"], r["compile_s"]) for r in rows}
-    comp = sum(x for x in (report._float(c) for _, _, c in compiles) if math.isfinite(x))
+    comp = sum(x for x in (report.as_float(c) for _, _, c in compiles) if math.isfinite(x))
     return wall + comp
 
 
@@ -222,6 +228,8 @@ def _caption(p) -> str:
 
 
 def episode_section(pictures, tasks) -> list[str]:
+    """HTML lines: per task, each method's median-seed episode (animation, filmstrip and
+    caption, :class:`dax_algos.bench.episodes.Picture`)."""
     lines = []
     for t in tasks:
         pics = [p for p in pictures if p.task == t]
@@ -246,6 +254,8 @@ def episode_section(pictures, tasks) -> list[str]:
 
 
 def run_section(run: Mapping) -> list[str]:
+    """HTML lines: what ``run.json`` records (each command line with its start, machine
+    and package versions; the task and method overrides)."""
     invocations = [i for i in run.get("invocations", []) if isinstance(i, Mapping)]
     if not invocations:
         return ['<p class="note">Not recorded (results from before run.json recorded '

@@ -14,7 +14,8 @@ import numpy as np
 from dax_tasks.io import atomic_write
 
 
-def _float(v):
+def as_float(v):
+    """A results-row field as a float (``nan`` for an empty or non-numeric one)."""
     try:
         return float(v)
     except (TypeError, ValueError):
@@ -30,7 +31,8 @@ def mean_se(values) -> tuple[float, float]:
     return float(np.mean(x)), se
 
 
-def _group(rows):
+def group_rows(rows):
+    """``{(task, method): [rows]}``."""
     groups = defaultdict(list)
     for r in rows:
         groups[(r["task"], r["method"])].append(r)
@@ -43,8 +45,10 @@ def _order(values, preferred):
     return first + [v for v in seen if v not in first]
 
 
-def _cell(rows) -> str:
-    ok = [_float(r["score"]) for r in rows if r["status"] == "ok"]
+def score_cell(rows) -> str:
+    """The score of one (task, method)'s rows: mean ± SE of the finished seeds (``(n=1)``
+    for one), with the failed and skipped runs counted; ``failed`` / ``n/a`` for none."""
+    ok = [as_float(r["score"]) for r in rows if r["status"] == "ok"]
     failed = sum(r["status"] == "failed" for r in rows)
     skipped = sum(r["status"] == "skipped" for r in rows)
     if ok:
@@ -64,7 +68,7 @@ def _cell(rows) -> str:
 
 def markdown(rows, task_order=(), method_order=(), title="DaX benchmark") -> str:
     """The results as Markdown: scores (mean ± SE over seeds) and compute per run."""
-    groups = _group(rows)
+    groups = group_rows(rows)
     tasks = _order([r["task"] for r in rows], task_order)
     methods = _order([r["method"] for r in rows], method_order)
     budgets = sorted({r.get("budget", "") for r in rows})
@@ -78,7 +82,7 @@ def markdown(rows, task_order=(), method_order=(), title="DaX benchmark") -> str
              "| method | " + " | ".join(tasks) + " |",
              "|---|" + "---|" * len(tasks)]
     for m in methods:
-        cells = [_cell(groups.get((t, m), [])) if (t, m) in groups else "" for t in tasks]
+        cells = [score_cell(groups.get((t, m), [])) if (t, m) in groups else "" for t in tasks]
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     lines += ["", "## Compute per run", "",
               "Mean wall time of the compiled episode [s] (compilation excluded; see "
@@ -93,8 +97,8 @@ def markdown(rows, task_order=(), method_order=(), title="DaX benchmark") -> str
             if not rs:
                 cells.append("")
                 continue
-            w = np.mean([_float(r["wall_s"]) for r in rs])
-            e = np.mean([_float(r["env_steps"]) for r in rs])
+            w = np.mean([as_float(r["wall_s"]) for r in rs])
+            e = np.mean([as_float(r["env_steps"]) for r in rs])
             cells.append(f"{w:.1f} s / {e:.0f}")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     grads = [r for r in rows if r.get("grad_norm") not in ("", None)
@@ -103,10 +107,10 @@ def markdown(rows, task_order=(), method_order=(), title="DaX benchmark") -> str
         lines += ["", "## Gradient norms (raw, before clipping)", "",
                   "| task | method | max over runs | mean | non-finite grad steps |",
                   "|---|---|---|---|---|"]
-        for (t, m), rs in sorted(_group(grads).items()):
-            gmax = max(_float(r["grad_norm"]) for r in rs)
-            gmean = np.nanmean([_float(r["grad_norm_mean"]) for r in rs])
-            bad = sum(int(_float(r["nonfinite_grads"]) or 0) for r in rs)
+        for (t, m), rs in sorted(group_rows(grads).items()):
+            gmax = max(as_float(r["grad_norm"]) for r in rs)
+            gmean = np.nanmean([as_float(r["grad_norm_mean"]) for r in rs])
+            bad = sum(int(as_float(r["nonfinite_grads"]) or 0) for r in rs)
             lines.append(f"| {t} | {m} | {gmax:.3g} | {gmean:.3g} | {bad} |")
     failures = [r for r in rows if r["status"] == "failed"]
     if failures:
@@ -126,7 +130,7 @@ def charts(rows, out_dir: Path, method_order=()) -> list[Path]:
     import matplotlib.pyplot as plt
 
     written = []
-    groups = _group([r for r in rows if r["status"] == "ok"])
+    groups = group_rows([r for r in rows if r["status"] == "ok"])
     tasks = list(dict.fromkeys(t for t, _ in groups))
     for task in tasks:
         methods = _order([m for t, m in groups if t == task], method_order)
@@ -134,9 +138,9 @@ def charts(rows, out_dir: Path, method_order=()) -> list[Path]:
         for i, m in enumerate(methods):
             rs = groups[(task, m)]
             colour = f"C{i % 10}"
-            score = [_float(r["score"]) for r in rs]
+            score = [as_float(r["score"]) for r in rs]
             for ax, col in zip(axes, ("wall_s", "env_steps"), strict=True):
-                x = [max(_float(r[col]), 1e-3) for r in rs]
+                x = [max(as_float(r[col]), 1e-3) for r in rs]
                 ax.scatter(x, score, color=colour, alpha=0.3, s=12)
                 (mx, sx), (my, sy) = mean_se(x), mean_se(score)
                 ax.errorbar([mx], [my], xerr=[0 if math.isnan(sx) else sx],

@@ -10,7 +10,7 @@ differs.
 
     env = dax_tasks.make("fold_cloth1")
     act, policy = load_trained("results/policies/fold_cloth1/ppo/seed0.msgpack", env, "ppo")
-    z = act(policy, dax_algos.learner.features(obs, state.t, env.horizon))   # normalised action
+    z = act(policy, dax_algos.mlp_policy.features(obs, state.t, env.horizon))  # normalised
 """
 
 from __future__ import annotations
@@ -23,7 +23,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import __version__, learner, nets, registry
+from .. import __version__, nets, registry
+from ..learner import Policy
+from ..method import LearnerMethod
+from ..mlp_policy import ObsNorm, feature_dim
 from . import policy_io
 
 
@@ -44,13 +47,15 @@ def _config_from_json(cls, data: dict):
 
 
 def policy_meta(method: str, env, config) -> dict:
+    """What a policy file records beside the arrays: the method, the task and its spec's
+    fingerprint, the full config, the input and action sizes and this package's version."""
     return {"method": method, "task": env.spec.name,
             "task_fingerprint": env.spec.fingerprint(), "config": _config_json(config),
-            "obs_dim": learner.feature_dim(env), "action_dim": env.spec.action_dim,
+            "obs_dim": feature_dim(env), "action_dim": env.spec.action_dim,
             "dax_algos_version": __version__}
 
 
-def trained_record(method: str, env, config, policy: learner.Policy, **extra_meta) -> tuple:
+def trained_record(method: str, env, config, policy: Policy, **extra_meta) -> tuple:
     """``(tree, meta)``: what :func:`save_trained` writes for ``policy``, as plain data
     (NumPy arrays, JSON), so that a process without the env can write it
     (``policy_io.save_policy(path, tree, meta)``)."""
@@ -62,8 +67,9 @@ def trained_record(method: str, env, config, policy: learner.Policy, **extra_met
     return tree, {**policy_meta(method, env, config), **extra_meta}
 
 
-def save_trained(path, method: str, env, config, policy: learner.Policy, **extra_meta) -> Path:
-    """Write ``policy`` (an :class:`learner.Policy` of one seed, NumPy or JAX arrays)."""
+def save_trained(path, method: str, env, config, policy: Policy, **extra_meta) -> Path:
+    """Write ``policy`` (a :class:`dax_algos.learner.Policy` of one seed, NumPy or JAX
+    arrays)."""
     return policy_io.save_policy(path, *trained_record(method, env, config, policy,
                                                        **extra_meta))
 
@@ -75,28 +81,25 @@ def load_trained(path, env, method: str | None = None, config=None):
     given) or another config (if ``config`` is given)."""
     meta = policy_io.read_meta(path)
     method = method or meta.get("method")
-    m = registry.get(method)
-    if m.learner is None:
-        raise ValueError(f"{path}: method {method!r} is not a learning method")
+    m = _learner_method(path, method)
     expect = {"task": env.spec.name, "task_fingerprint": env.spec.fingerprint(),
               "method": method}
     if config is not None:
         expect["config"] = _config_json(config)
     tree, meta = policy_io.load_policy(path, expect)
     config = config or _config_from_json(m.config_cls, meta["config"])
-    network = _policy_network(m, env, config)
-    params = network.from_tree(tree["policy"])
+    params = m.learner.network(env, config).from_tree(tree["policy"])
     on = tree.get("obs_norm")
-    norm = None if on is None else learner.ObsNorm(
+    norm = None if on is None else ObsNorm(
         jnp.asarray(on["mean"]), jnp.asarray(on["var"]), jnp.asarray(on["count"]))
-    return m.learner.make_act(env, config), learner.Policy(params, norm)
+    return m.learner.make_act(env, config), Policy(params, norm)
 
 
-def _policy_network(method, env, config):
-    module = method.learner
-    if hasattr(module, "networks"):
-        return module.networks(env, config)[0]
-    return module.network(env, config)
+def _learner_method(path, method: str) -> LearnerMethod:
+    m = registry.get(method)
+    if not isinstance(m, LearnerMethod):
+        raise ValueError(f"{path}: method {method!r} is not a learning method")
+    return m
 
 
 def evaluate_trained(path, env, method: str, seed: int) -> dict:
@@ -105,14 +108,10 @@ def evaluate_trained(path, env, method: str, seed: int) -> dict:
     per rollout: ``{task, method, seed, n_rollouts, mean, se, min, max, finite, scores}``."""
     task = env.spec.name
     meta = policy_io.read_meta(path)
-    m = registry.get(method)
+    m = _learner_method(path, method)
     config = _config_from_json(m.config_cls, meta["config"])
     act, policy = load_trained(path, env, method, config)
-    module = m.learner
-    if hasattr(module, "make_evaluate"):
-        evaluate = module.make_evaluate(env, config, per_rollout=True)
-    else:
-        evaluate = learner.make_evaluate(env, act, config.n_eval, per_rollout=True)
+    evaluate = m.learner.make_evaluate(env, config, act, per_rollout=True)
     key = jax.random.fold_in(jax.random.PRNGKey(seed), 0)
     # not under vmap, as the runner evaluates (one seed at a time): the same program shape,
     # so the same round-off (an argmax policy's pick can flip on it)

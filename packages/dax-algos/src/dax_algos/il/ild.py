@@ -3,7 +3,7 @@
 demonstration.
 
 The policy (an MLP on the task's ``state`` observation and ``t / horizon``, as the RL
-methods' :mod:`dax_algos.learner`) is rolled through the differentiable step from ``num_envs``
+methods', :mod:`dax_algos.mlp_policy`) is rolled through the differentiable step from ``num_envs``
 starts and its parameters descend the distance between the states it visits and the
 demonstration's states at the same steps, summed over the episode: the action of step
 ``t`` gets gradient from the state after it and from every later one (through the
@@ -37,9 +37,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from dax_tasks.core.wrappers import VmapWrapper
+import dax_tasks
 
-from .. import common, learner, nets
+from .. import nets
+from ..actions import to_action
+from ..checks import check_fields
+from ..learner import Learner, Policy, UpdateMetrics
+from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
+from ..optim import guarded_update, make_optimiser
 from . import demos
 
 WEIGHTINGS = ("per_part", "flat")
@@ -69,13 +74,10 @@ class ILDConfig:
     n_eval: int = 20
 
     def __post_init__(self):
-        learner.check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
-                        positive=("learning_rate",),
-                        non_negative=("object_weight", "effector_weight"))
-        if self.window is not None:
-            common.check_positive_int("window", self.window)
-        if self.max_grad_norm is not None:
-            common.check_positive("max_grad_norm", self.max_grad_norm)
+        check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
+                     positive=("learning_rate",),
+                     non_negative=("object_weight", "effector_weight"),
+                     optional_ints=("window",), optional_positive=("max_grad_norm",))
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"unknown weighting {self.weighting!r}; valid: "
                              f"{', '.join(WEIGHTINGS)}")
@@ -123,6 +125,7 @@ def load_data(env, path) -> Demonstration:
 
 
 def demo_spec(config: ILDConfig) -> demos.DemoSpec:
+    """dax-data's standard ``ild`` set, read by :func:`load_data`."""
     return demos.DemoSpec("ild", load_data)
 
 
@@ -135,23 +138,25 @@ def state_distance(points, effector, target_points, target_effector, config: ILD
     return config.object_weight * jnp.mean(d_obj, axis=-1) + config.effector_weight * d_ee
 
 
-def network(env, config: ILDConfig):
-    return nets.policy_network(learner.feature_dim(env), env.spec.action_dim,
+def network(env, config: ILDConfig) -> nets.Network:
+    """The deterministic policy's network (a Gaussian policy whose mean is used)."""
+    return nets.policy_network(feature_dim(env), env.spec.action_dim,
                                config.policy_hidden, config.activation)
 
 
 def make_act(env, config: ILDConfig):
-    return learner.make_act(network(env, config), config.normalize_obs)
+    """``act(policy, feats) -> z``: the trained policy's deterministic action."""
+    return deterministic_act(network(env, config), config.normalize_obs)
 
 
-def make_train(env, config: ILDConfig):
-    """``train(key, params, demo) -> (learner.Policy, learner.UpdateMetrics)``; ``demo`` a
-    :class:`Demonstration`."""
-    horizon, window = env.horizon, config.window_for(env)
-    n_windows = math.ceil(horizon / window)
-    venv = VmapWrapper(env, config.num_envs)
-    pnet = network(env, config)
-    opt = learner.make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
+def make_window_loss(env, venv, pnet, config: ILDConfig, window: int):
+    """``window_loss(policy, norm, obs, state, params, demo) -> (loss, (obs, state, feats,
+    final_r_gt_sum, episodes_ended))``: ``window`` steps of the deterministic policy
+    through the batched env ``venv`` from ``(obs, state)``; the loss is the
+    :func:`state_distance` to the demonstration's state after each step, summed over the
+    steps inside the episode and divided by ``num_envs * horizon``; differentiable in
+    ``policy`` through the simulator."""
+    horizon = env.horizon
     points_of = jax.vmap(env.object_points)
     effector_of = jax.vmap(env.end_effector)
 
@@ -159,9 +164,9 @@ def make_train(env, config: ILDConfig):
         def step(carry, _):
             obs, state = carry
             t = state.t
-            feats = learner.batch_features(obs, t, horizon)
+            feats = batch_features(obs, t, horizon)
             mean, _ = pnet.apply(policy, norm(feats, config.normalize_obs))
-            obs, state, _, _, info = venv.step(state, common.to_action(env, jnp.tanh(mean)),
+            obs, state, _, _, info = venv.step(state, to_action(env, jnp.tanh(mean)),
                                                params)
             nxt = jnp.minimum(t + 1, horizon)
             d = state_distance(points_of(state.physics), effector_of(state.physics),
@@ -177,13 +182,25 @@ def make_train(env, config: ILDConfig):
         loss = jnp.sum(d) / (config.num_envs * horizon)
         return loss, (obs, state, feats, jnp.sum(final_r), jnp.sum(last))
 
-    grad_fn = jax.value_and_grad(window_loss, has_aux=True)
+    return window_loss
+
+
+def make_train(env, config: ILDConfig):
+    """``train(key, params, demo) -> (Policy, UpdateMetrics)``; ``demo`` a
+    :class:`Demonstration`."""
+    window = config.window_for(env)
+    n_windows = math.ceil(env.horizon / window)
+    venv = dax_tasks.VmapWrapper(env, config.num_envs)
+    pnet = network(env, config)
+    opt = make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
+    grad_fn = jax.value_and_grad(make_window_loss(env, venv, pnet, config, window),
+                                 has_aux=True)
 
     def train(key, params, demo: Demonstration):
         k_pi, k_run = jax.random.split(key)
         policy = pnet.init(k_pi)
         opt_state = opt.init(policy)
-        norm = learner.ObsNorm.create(learner.feature_dim(env))
+        norm = ObsNorm.create(feature_dim(env))
 
         def update(carry, k):
             policy, opt_state, norm, steps = carry
@@ -196,7 +213,7 @@ def make_train(env, config: ILDConfig):
                 policy, opt_state, norm, obs, state = c
                 (loss, (obs, state, feats, r_sum, n_last)), grads = grad_fn(
                     policy, norm, obs, state, params, demo)
-                policy, opt_state, gnorm, bad = learner.guarded_update(
+                policy, opt_state, gnorm, bad = guarded_update(
                     opt, grads, opt_state, policy, config.zero_nans)
                 norm = norm.update(feats) if config.normalize_obs else norm
                 obs, state = jax.lax.stop_gradient((obs, state))
@@ -206,7 +223,7 @@ def make_train(env, config: ILDConfig):
             (policy, opt_state, norm, _, _), (gnorm, bad, r_sum, n_last, loss) = jax.lax.scan(
                 one_window, (policy, opt_state, norm, obs, state), None, length=n_windows)
             steps = steps + config.num_envs * window * n_windows
-            metrics = learner.UpdateMetrics(
+            metrics = UpdateMetrics(
                 env_steps=steps, score=jnp.sum(r_sum) / jnp.maximum(jnp.sum(n_last), 1),
                 episode_return=jnp.asarray(jnp.nan, jnp.float32), grad_norm=gnorm[-1],
                 nonfinite=jnp.sum(bad.astype(jnp.int32)),
@@ -216,6 +233,10 @@ def make_train(env, config: ILDConfig):
         carry = (policy, opt_state, norm, jnp.zeros((), jnp.int32))
         (policy, _, norm, _), metrics = jax.lax.scan(
             update, carry, jax.random.split(k_run, config.updates_for(env)))
-        return learner.Policy(policy, norm), metrics
+        return Policy(policy, norm), metrics
 
     return train
+
+
+LEARNER = Learner(make_train=make_train, make_act=make_act, network=network,
+                  train_env_steps=train_env_steps, demo_spec=demo_spec)

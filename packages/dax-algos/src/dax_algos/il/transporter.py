@@ -3,7 +3,7 @@ World for Robotic Manipulation"), goal-conditioned (Seita et al. 2021, "Learning
 Rearrange Deformable Cables, Fabrics, and Bags with Goal-Conditioned Transporter
 Networks"), trained by imitation on expert pick-and-place demonstrations.
 
-**Input.** A top-down picture of the scene (:class:`dax_tasks.core.wrappers.ObservationMode`,
+**Input.** A top-down picture of the scene (:class:`dax_tasks.ObservationMode`,
 the task's camera): the height map (``transporter``) or the RGB picture and the height map
 (``transporter_rgb``; the object's texture tells a cloth's corners or a rope's ends apart,
 which a height map cannot), with the goal's picture in the same mode stacked on the
@@ -51,9 +51,15 @@ import numpy as np
 from flax import nnx
 from jax.scipy.ndimage import map_coordinates
 
-from dax_tasks.core.wrappers import ObservationMode, rgb_as_float
+import dax_tasks
+from dax_tasks.core.wrappers import rgb_as_float
 
-from .. import common, learner, nets
+from .. import nets
+from ..actions import to_normalised
+from ..checks import check_fields
+from ..learner import Learner, Policy, UpdateMetrics, make_evaluate
+from ..method import NotApplicable
+from ..optim import guarded_update, make_optimiser
 from . import demos
 
 MACRO_KINDS = ("push", "pick_place")
@@ -89,20 +95,19 @@ class TransporterConfig:
     n_eval: int = 20
 
     def __post_init__(self):
-        learner.check_fields(self, ints=("image_size", "demos", "width", "features", "crop",
-                                    "n_rotations", "train_steps", "batch_size", "n_eval"),
-                        positive=("learning_rate", "height_scale"),
-                        non_negative=("augment_rotation", "augment_shift"))
+        check_fields(self, ints=("image_size", "demos", "width", "features", "crop",
+                                 "n_rotations", "train_steps", "batch_size", "n_eval"),
+                     positive=("learning_rate", "height_scale"),
+                     non_negative=("augment_rotation", "augment_shift"),
+                     optional_positive=("max_grad_norm",))
         if self.image_size % 8:
             raise ValueError(f"image_size must be a multiple of 8, got {self.image_size}")
         if self.crop % 2 == 0:
             raise ValueError(f"crop must be odd (centred on the pick), got {self.crop}")
-        if self.max_grad_norm is not None:
-            common.check_positive("max_grad_norm", self.max_grad_norm)
 
     @property
     def mode(self) -> str:
-        """The observation mode (:class:`dax_tasks.core.wrappers.ObservationMode`)."""
+        """The observation mode (:class:`dax_tasks.ObservationMode`)."""
         return "rgbd" if self.rgb else "height"
 
     @property
@@ -122,20 +127,22 @@ class TransporterConfig:
 
 
 def check_task(env) -> None:
+    """:class:`dax_algos.method.NotApplicable` unless ``env`` has macro actions."""
     if env.spec.action_kind not in MACRO_KINDS:
-        raise common.NotApplicable(
+        raise NotApplicable(
             f"Transporter networks choose a pick and a place: they need a macro-action task "
             f"({', '.join(MACRO_KINDS)}); {env.spec.name} has {env.spec.action_kind} actions")
 
 
 def train_env_steps(env, config) -> int:
-    """None: the networks learn from the demonstrations, not from environment steps."""
+    """0: the networks learn from the demonstrations, not from environment steps."""
     return 0
 
 
-def observation_env(env, config: TransporterConfig) -> ObservationMode:
+def observation_env(env, config: TransporterConfig) -> dax_tasks.ObservationMode:
     """The env seen through the pictures the networks take."""
-    return ObservationMode(env, config.mode, config.image_size, goal_image=config.goal_image)
+    return dax_tasks.ObservationMode(env, config.mode, config.image_size,
+                                     goal_image=config.goal_image)
 
 
 # ----------------------------------------------------------------------------- networks
@@ -150,9 +157,9 @@ def matmul_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilati
                 dimension_numbers=None, feature_group_count=1, precision=None, **_):
     """``lax.conv_general_dilated`` for NHWC inputs and HWIO kernels without dilation or
     groups (what :class:`FCN`'s ``nnx.Conv`` layers ask for), computed as shifted slices
-    and one matrix product. XLA's CPU convolutions run 10 times slower inside a loop body
-    than outside (jax-ml/jax#12868: measured here, one Transporter training step 3.1 s in a
-    ``lax.scan`` against 0.28 s alone); slices and a dot product do not."""
+    and one matrix product: a convolution inside a loop body (the training's ``lax.scan``)
+    hits an XLA:CPU performance bug (jax-ml/jax#12868) that slices and a dot product do
+    not."""
     if any(d not in (None, 1) for d in (*(lhs_dilation or ()), *(rhs_dilation or ()))) \
             or feature_group_count != 1:
         raise NotImplementedError("matmul_conv: no dilation or feature groups")
@@ -180,9 +187,9 @@ class FCN(nnx.Module):
     """A small U-Net, ``(S, S, cin) -> (S/2, S/2, cout)``: three stride-2 3x3 convolutions
     down to S/8 (a receptive field about the whole picture at S = 64), two
     nearest-neighbour upsamplings back to S/2, each fused with the same-resolution features
-    on the way down. The output grid is half the picture's (on 2 CPU cores the
-    full-resolution layers cost more than the rest together; a 64-pixel picture of the
-    cloth tasks' view gives 1.5 cm output pixels, half a cloth's vertex spacing)."""
+    on the way down. The output grid is half the picture's (no full-resolution layers
+    after the first; a 64-pixel picture of the cloth tasks' view gives 1.5 cm output
+    pixels, half a cloth's vertex spacing)."""
 
     def __init__(self, cin: int, cout: int, width: int, rngs: nnx.Rngs):
         w = width
@@ -229,6 +236,8 @@ class TransporterNet(nnx.Module):
 
 
 def network(env, config: TransporterConfig) -> nets.Network:
+    """The three FCNs (:class:`TransporterNet`) for ``config``'s pictures (``env`` is not
+    used)."""
     c = config
     return nets.Network(lambda rngs: TransporterNet(c.channels, c.width, c.features, rngs),
                         name=f"transporter {c.image_size}x{c.image_size}x{c.channels} "
@@ -260,7 +269,7 @@ def correlate(feat, kernels):
     """``(R, H, W)``: each of the kernels ``(R, c, c, D)`` cross-correlated with ``feat``
     ``(H, W, D)`` (zero padding, centred). Written as shifted slices and one contraction:
     a convolution with a different kernel per sample (under ``vmap``) is a grouped
-    convolution, whose gradient XLA runs about 100 times slower on the CPU."""
+    convolution, whose gradient XLA:CPU compiles poorly."""
     c = kernels.shape[1]
     h, w = feat.shape[:2]
     p = c // 2
@@ -402,6 +411,8 @@ def load_data(env, config: TransporterConfig, path) -> TransporterData:
 
 
 def demo_spec(config: TransporterConfig) -> demos.DemoSpec:
+    """dax-data's standard ``transporter`` set with pictures of ``image_size`` pixels, read
+    by :func:`load_data`."""
     return demos.DemoSpec("transporter", lambda env, path: load_data(env, config, path),
                           config.image_size)
 
@@ -410,10 +421,10 @@ def demo_spec(config: TransporterConfig) -> demos.DemoSpec:
 
 def fit(key, data: TransporterData, config: TransporterConfig):
     """``(params, metrics)``: the networks trained on ``data`` (pure; jit it). ``metrics``
-    has one :class:`learner.UpdateMetrics` entry per Adam step (no environment steps: the
+    has one :class:`dax_algos.learner.UpdateMetrics` entry per Adam step (no environment steps: the
     training reads demonstrations only)."""
     net = network(None, config)
-    opt = learner.make_optimiser(config.learning_rate, config.max_grad_norm)
+    opt = make_optimiser(config.learning_rate, config.max_grad_norm)
     m = data.obs.shape[0]
 
     def batch_loss(params, key):
@@ -432,9 +443,8 @@ def fit(key, data: TransporterData, config: TransporterConfig):
     def update(carry, key):
         params, opt_state = carry
         loss, grads = grad_fn(params, key)
-        params, opt_state, gnorm, bad = learner.guarded_update(opt, grads, opt_state, params,
-                                                          False)
-        metrics = learner.UpdateMetrics(
+        params, opt_state, gnorm, bad = guarded_update(opt, grads, opt_state, params, False)
+        metrics = UpdateMetrics(
             env_steps=jnp.zeros((), jnp.int32), score=jnp.asarray(jnp.nan, jnp.float32),
             episode_return=jnp.asarray(jnp.nan, jnp.float32), grad_norm=gnorm,
             nonfinite=bad.astype(jnp.int32), grad_steps=jnp.ones((), jnp.int32), loss=loss)
@@ -475,7 +485,7 @@ def make_act(env, config: TransporterConfig):
     camera = observation_env(env, config).camera
     g, z0, hc = config.image_size // 2, camera.window[4], config.height_channels[0]
 
-    def act(policy: learner.Policy, obs):
+    def act(policy: Policy, obs):
         pick, place, dz_pick, dz_place = predict(net, policy.params, obs, config)
         heights = grid_heights(obs[..., hc])
 
@@ -485,26 +495,32 @@ def make_act(env, config: TransporterConfig):
             return jnp.concatenate([xy, (z0 + heights[rc[0], rc[1]] + dz)[None]])
 
         action = jnp.concatenate([point(pick, dz_pick), point(place, dz_place)])
-        return common.to_normalised(env, action)
+        return to_normalised(env, action)
 
     return act
 
 
 def make_train(env, config: TransporterConfig):
-    """``train(key, params, data) -> (learner.Policy, learner.UpdateMetrics)`` (``params``,
+    """``train(key, params, data) -> (Policy, UpdateMetrics)`` (``params``,
     the env's, are not used: training reads the demonstrations only)."""
     check_task(env)
 
     def train(key, params, data):
         net_params, metrics = fit(key, data, config)
-        return learner.Policy(net_params, None), metrics
+        return Policy(net_params, None), metrics
 
     return train
 
 
-def make_evaluate(env, config: TransporterConfig, per_rollout: bool = False):
-    """Evaluation rollouts of the trained networks on the pictures they see (see
+def make_evaluate_on_pictures(env, config: TransporterConfig, act,
+                              per_rollout: bool = False):
+    """:attr:`dax_algos.learner.Learner.make_evaluate` of Transporter networks: the
+    evaluation rollouts of ``act`` on the pictures it sees (:func:`observation_env`; see
     :func:`dax_algos.learner.make_evaluate` for ``per_rollout``)."""
-    return learner.make_evaluate(observation_env(env, config), make_act(env, config),
-                            config.n_eval, inputs=lambda obs, t: obs,
-                            per_rollout=per_rollout)
+    return make_evaluate(observation_env(env, config), act, config.n_eval,
+                         inputs=lambda obs, t: obs, per_rollout=per_rollout)
+
+
+LEARNER = Learner(make_train=make_train, make_act=make_act, network=network,
+                  train_env_steps=train_env_steps, make_evaluate=make_evaluate_on_pictures,
+                  demo_spec=demo_spec)

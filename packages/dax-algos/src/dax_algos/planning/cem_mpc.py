@@ -3,7 +3,7 @@
 At every environment step the planner samples ``population`` normalised action sequences
 (``horizon`` steps each) from a diagonal Gaussian, simulates all of them from the current
 state with the task's pure step (``vmap`` over the population), keeps the ``elites`` best
-by the planning objective (:func:`dax_algos.common.make_objective`), refits the Gaussian
+by the planning objective (:func:`dax_algos.planning.planner.make_objective`), refits the Gaussian
 (with ``momentum`` towards the old one and a floor ``min_std``) and repeats ``iterations``
 times. The current mean is always evaluated as member 0 (so an iteration never forgets
 it), the best sequence seen is kept, and its first action is executed. The next step's
@@ -11,7 +11,7 @@ search starts from the best sequence shifted by one step (warm start) with the s
 deviation reset to ``init_std``.
 
 Pure core: :func:`cem_optimise` (any ``value(z_seq)`` function); :func:`make_planner`
-turns it into a :class:`dax_algos.common.Planner`.
+turns it into a :class:`dax_algos.planning.planner.Planner`.
 """
 
 from __future__ import annotations
@@ -21,9 +21,11 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from dax_tasks.core.sharding import shard_batch
+from dax_tasks import shard_batch
 
-from .. import common
+from ..checks import check_positive, check_positive_int
+from ..episode import no_grad_stats
+from .planner import Planner, check_objective, plan_length, warm_started_planner
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +35,7 @@ class CEMConfig:
     steps (clipped to the episode length); init_std / min_std: standard deviation at the
     start of each replanning and its floor, in normalised action units (the action box is
     [-1, 1]); momentum: weight of the old mean / std in the refit; objective: ``"final"``
-    or ``"sum"`` (see :func:`dax_algos.common.make_objective`)."""
+    or ``"sum"`` (see :func:`dax_algos.planning.planner.make_objective`)."""
 
     population: int = 64
     elites: int = 8
@@ -46,15 +48,15 @@ class CEMConfig:
 
     def __post_init__(self):
         for name in ("population", "elites", "iterations", "horizon"):
-            common.check_positive_int(name, getattr(self, name))
+            check_positive_int(name, getattr(self, name))
         if self.elites > self.population:
             raise ValueError(f"elites ({self.elites}) must be <= population "
                              f"({self.population})")
-        common.check_positive("init_std", self.init_std)
-        common.check_positive("min_std", self.min_std, allow_zero=True)
+        check_positive("init_std", self.init_std)
+        check_positive("min_std", self.min_std, allow_zero=True)
         if not 0.0 <= self.momentum < 1.0:
             raise ValueError(f"momentum must be in [0, 1), got {self.momentum!r}")
-        common.check_objective(self.objective)
+        check_objective(self.objective)
 
 
 def cem_optimise(value_fn, mean, key, config: CEMConfig):
@@ -62,7 +64,7 @@ def cem_optimise(value_fn, mean, key, config: CEMConfig):
 
     Returns ``(best_z, best_value)``. ``value_fn`` is vmapped over the population; a
     non-finite value ranks last. With several devices the population (the samples and
-    their values) is split over them (:func:`dax_tasks.core.sharding.shard_batch`; a
+    their values) is split over them (:func:`dax_tasks.shard_batch`; a
     population that is a multiple of the device count). Pure and jittable."""
     pop, n_elite = config.population, config.elites
     batched = jax.vmap(value_fn)
@@ -90,20 +92,13 @@ def cem_optimise(value_fn, mean, key, config: CEMConfig):
     return best_z, best_v
 
 
-def make_planner(env, config: CEMConfig) -> common.Planner:
+def make_planner(env, config: CEMConfig) -> Planner:
     """CEM-MPC for ``env``: pstate is the warm-start mean (h, d)."""
-    h = common.plan_length(env, config.horizon)
-    d = env.spec.action_dim
-    value = common.make_objective(env, config.objective)
+    h = plan_length(env, config.horizon)
 
-    def init(key):
-        return jnp.zeros((h, d), jnp.float32)
+    def search(value_fn, mean, key):
+        best_z, best_v = cem_optimise(value_fn, mean, key, config)
+        return best_z, no_grad_stats(best_v)
 
-    def plan(mean, env_state, key, params):
-        best_z, best_v = cem_optimise(lambda z: value(env_state, z, params), mean, key,
-                                      config)
-        action = common.to_action(env, best_z[0])
-        return action, common.shift(best_z, jnp.zeros(d)), common.no_grad_stats(best_v)
-
-    sims = config.iterations * config.population * h
-    return common.Planner(init=init, plan=plan, sim_steps_per_plan=sims)
+    return warm_started_planner(env, config.horizon, config.objective, search,
+                                sim_steps_per_plan=config.iterations * config.population * h)

@@ -2,13 +2,13 @@
 
 At every environment step the planner optimises a normalised action sequence (``horizon``
 steps) by ``steps`` gradient steps of an Optax optimiser on the planning objective
-(:func:`dax_algos.common.make_objective`), differentiating through the task's pure step.
+(:func:`dax_algos.planning.planner.make_objective`), differentiating through the task's pure step.
 The first plan starts from a uniform random sequence; later plans start from the previous
 solution shifted by one step, with a random last action. After each update the sequence is
 projected back onto the action box. The best sequence seen (the objective is evaluated at
 every iterate and once after the last update) is kept and its first action executed.
 
-Stability: the raw global gradient norm of every step is measured (reported as
+Stability: the raw global gradient norm of every step is computed (reported as
 ``grad_norm``), the gradient is clipped to ``max_grad_norm`` with
 ``optax.clip_by_global_norm`` (``None``: no clipping), and ``zero_nans=True`` chains
 ``optax.zero_nans()`` first (off by default: a non-finite gradient is counted and the
@@ -25,9 +25,12 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from .. import common
-
-OPTIMISERS = ("adam", "sgd")
+from ..actions import to_action
+from ..checks import check_fields
+from ..episode import PlanStats
+from ..optim import OPTIMISERS
+from ..optim import make_optimiser as chain_optimiser
+from .planner import Planner, check_objective, make_objective, plan_length, shift
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,27 +50,19 @@ class DiffMPCConfig:
     objective: str = "final"
 
     def __post_init__(self):
-        common.check_positive_int("steps", self.steps)
-        common.check_positive_int("horizon", self.horizon)
-        common.check_positive("learning_rate", self.learning_rate)
+        check_fields(self, ints=("steps", "horizon"), positive=("learning_rate",),
+                     optional_positive=("max_grad_norm",))
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"unknown optimiser {self.optimiser!r}; valid: "
                              f"{', '.join(OPTIMISERS)}")
-        if self.max_grad_norm is not None:
-            common.check_positive("max_grad_norm", self.max_grad_norm)
-        common.check_objective(self.objective)
+        check_objective(self.objective)
 
 
 def make_optimiser(config: DiffMPCConfig) -> optax.GradientTransformation:
-    """``[zero_nans] -> [clip_by_global_norm] -> adam | sgd`` (minimising)."""
-    parts = []
-    if config.zero_nans:
-        parts.append(optax.zero_nans())
-    if config.max_grad_norm is not None:
-        parts.append(optax.clip_by_global_norm(config.max_grad_norm))
-    opt = optax.adam if config.optimiser == "adam" else optax.sgd
-    parts.append(opt(config.learning_rate))
-    return optax.chain(*parts)
+    """``[zero_nans] -> [clip_by_global_norm] -> adam | sgd`` (minimising) of ``config``
+    (:func:`dax_algos.optim.make_optimiser`)."""
+    return chain_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans,
+                           config.optimiser)
 
 
 def gradient_refine(value_fn, z0, config, best_z=None, best_v=None):
@@ -102,27 +97,27 @@ def gradient_refine(value_fn, z0, config, best_z=None, best_v=None):
     (z, _, best_z, best_v, gmax, gsum, bad), _ = jax.lax.scan(step, init, None,
                                                              length=config.steps)
     best_z, best_v = keep_best(z, value_fn(z), best_z, best_v)
-    stats = common.PlanStats(objective=best_v, grad_norm_max=gmax, grad_norm_sum=gsum,
+    stats = PlanStats(objective=best_v, grad_norm_max=gmax, grad_norm_sum=gsum,
                              grad_steps=jnp.asarray(config.steps, jnp.int32),
                              nonfinite_grads=bad)
     return best_z, best_v, stats
 
 
-def make_planner(env, config: DiffMPCConfig) -> common.Planner:
+def make_planner(env, config: DiffMPCConfig) -> Planner:
     """diff-MPC for ``env``: pstate is the previous solution (h, d)."""
-    h = common.plan_length(env, config.horizon)
+    h = plan_length(env, config.horizon)
     d = env.spec.action_dim
-    value = common.make_objective(env, config.objective)
+    value = make_objective(env, config.objective)
 
     def init(key):
         return jax.random.uniform(key, (h, d), jnp.float32, -1.0, 1.0)
 
     def plan(z0, env_state, key, params):
         best_z, _, stats = gradient_refine(lambda z: value(env_state, z, params), z0, config)
-        action = common.to_action(env, best_z[0])
+        action = to_action(env, best_z[0])
         tail = jax.random.uniform(key, (d,), jnp.float32, -1.0, 1.0)
-        return action, common.shift(best_z, tail), stats
+        return action, shift(best_z, tail), stats
 
-    return common.Planner(init=init, plan=plan, sim_steps_per_plan=(config.steps + 1) * h,
+    return Planner(init=init, plan=plan, sim_steps_per_plan=(config.steps + 1) * h,
                           backprop_steps_per_plan=config.steps * h,
                           nan_grads_zeroed=config.zero_nans)

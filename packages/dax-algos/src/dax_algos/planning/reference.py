@@ -9,7 +9,10 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from .. import common
+from ..actions import to_action
+from ..episode import no_grad_stats
+from ..method import NotApplicable
+from .planner import Planner
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,7 +25,9 @@ class ExpertConfig:
     """No options: the task's scripted expert."""
 
 
-def make_random(env, config: RandomConfig) -> common.Planner:
+def make_random(env, config: RandomConfig) -> Planner:
+    """A uniform normalised action in [-1, 1]^d every step (stats: no gradient, NaN
+    objective)."""
     d = env.spec.action_dim
 
     def init(key):
@@ -30,19 +35,21 @@ def make_random(env, config: RandomConfig) -> common.Planner:
 
     def plan(pstate, env_state, key, params):
         z = jax.random.uniform(key, (d,), jnp.float32, -1.0, 1.0)
-        return common.to_action(env, z), pstate, common.no_grad_stats(jnp.nan)
+        return to_action(env, z), pstate, no_grad_stats(jnp.nan)
 
-    return common.Planner(init=init, plan=plan)
+    return Planner(init=init, plan=plan)
 
 
-def make_expert(env, config: ExpertConfig) -> common.Planner:
+def make_expert(env, config: ExpertConfig) -> Planner:
+    """The task's scripted expert's action every step; :class:`dax_algos.method.
+    NotApplicable` for a task without one."""
     if not env.has_expert:
-        raise common.NotApplicable(f"task {env.spec.name!r} has no scripted expert")
+        raise NotApplicable(f"task {env.spec.name!r} has no scripted expert")
 
     def init(key):
         return jnp.zeros((), jnp.float32)
 
     def plan(pstate, env_state, key, params):
-        return env.expert_action(env_state, params), pstate, common.no_grad_stats(jnp.nan)
+        return env.expert_action(env_state, params), pstate, no_grad_stats(jnp.nan)
 
-    return common.Planner(init=init, plan=plan)
+    return Planner(init=init, plan=plan)

@@ -3,8 +3,9 @@ differentiable step and its parameters ascend the sum of rewards by backpropagat
 
 Per update, ``num_envs`` auto-resetting envs run ``window`` steps of the deterministic
 policy (``z = tanh(mean)``; ``action_noise`` adds Gaussian exploration noise to ``z``'s
-pre-squash value); the loss is ``-mean_env(sum of training rewards over the window)`` and
-its gradient flows through every simulator step. ``window=None`` backpropagates through the
+pre-squash value); the loss is ``-mean_env(sum of training rewards over the window)``
+(:func:`dax_algos.rl.losses.apg_return`) and its gradient flows through every simulator
+step. ``window=None`` backpropagates through the
 whole episode (each update is one episode per env); a shorter window truncates the
 gradient: the state carried into the next window is ``stop_gradient``-ed (Brax's
 truncation). The gradient's raw global norm is recorded, then clipped to
@@ -22,9 +23,16 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from dax_tasks.core.wrappers import training_env
+import dax_tasks
 
-from .. import common, learner, nets
+from .. import nets
+from ..actions import to_action
+from ..checks import check_fields
+from ..learner import Learner, Policy
+from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
+from ..optim import guarded_update, make_optimiser
+from . import losses
+from .training import training_params, update_metrics
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,13 +56,9 @@ class APGConfig:
     n_eval: int = 20
 
     def __post_init__(self):
-        learner.check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
-                        positive=("learning_rate",),
-                        non_negative=("action_noise", "aux_weight"))
-        if self.window is not None:
-            common.check_positive_int("window", self.window)
-        if self.max_grad_norm is not None:
-            common.check_positive("max_grad_norm", self.max_grad_norm)
+        check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
+                     positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
+                     optional_ints=("window",), optional_positive=("max_grad_norm",))
 
     def window_for(self, env) -> int:
         return env.horizon if self.window is None else self.window
@@ -63,28 +67,36 @@ class APGConfig:
         return max(1, self.total_env_steps // (self.num_envs * self.window_for(env)))
 
 
-def network(env, config):
-    return nets.policy_network(learner.feature_dim(env), env.spec.action_dim,
+def network(env, config: APGConfig) -> nets.Network:
+    """The deterministic policy's network (a Gaussian policy whose mean is used)."""
+    return nets.policy_network(feature_dim(env), env.spec.action_dim,
                                config.policy_hidden, config.activation)
 
 
 def make_act(env, config: APGConfig):
-    return learner.make_act(network(env, config), config.normalize_obs)
+    """``act(policy, feats) -> z``: the trained policy's deterministic action."""
+    return deterministic_act(network(env, config), config.normalize_obs)
+
+
+def train_env_steps(env, config: APGConfig) -> int:
+    """``num_envs * window`` per update, :meth:`APGConfig.updates_for` updates."""
+    return config.num_envs * config.window_for(env) * config.updates_for(env)
 
 
 def make_rollout(env, venv, pnet, config, window: int):
-    """``rollout(policy_params, norm, obs, state, key, params) -> (total_reward, (obs,
-    state, feats, reward, done, info))``: ``window`` steps of the batched env; the
-    total is differentiable in ``policy_params`` through the simulator."""
+    """``rollout(policy_params, norm, obs, state, key, params) -> (objective, (obs,
+    state, feats, reward, done, info))``: ``window`` steps of the batched env and
+    :func:`dax_algos.rl.losses.apg_return` of their rewards, differentiable in
+    ``policy_params`` through the simulator."""
     horizon = env.horizon
 
     def step(carry, k, policy_params, norm, params):
         obs, state = carry
-        feats = learner.batch_features(obs, state.t, horizon)
+        feats = batch_features(obs, state.t, horizon)
         mean, _ = pnet.apply(policy_params, norm(feats, config.normalize_obs))
         if config.action_noise > 0:
             mean = mean + config.action_noise * jax.random.normal(k, mean.shape)
-        obs, state, reward, done, info = venv.step(state, common.to_action(env, jnp.tanh(mean)),
+        obs, state, reward, done, info = venv.step(state, to_action(env, jnp.tanh(mean)),
                                                    params)
         return (obs, state), (feats, reward, done, info)
 
@@ -94,17 +106,17 @@ def make_rollout(env, venv, pnet, config, window: int):
             body = jax.checkpoint(body)
         (obs, state), (feats, reward, done, info) = jax.lax.scan(
             body, (obs, state), jax.random.split(key, window))
-        return jnp.mean(jnp.sum(reward, 0)), (obs, state, feats, reward, done, info)
+        return losses.apg_return(reward), (obs, state, feats, reward, done, info)
 
     return rollout
 
 
 def make_train(env, config: APGConfig):
-    """``train(key, params=None) -> (learner.Policy, learner.UpdateMetrics)``."""
+    """``train(key, params=None) -> (Policy, UpdateMetrics)``."""
     window = config.window_for(env)
-    venv = training_env(env, config.num_envs)
+    venv = dax_tasks.training_env(env, config.num_envs)
     pnet = network(env, config)
-    opt = learner.make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
+    opt = make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
     rollout = make_rollout(env, venv, pnet, config, window)
 
     def loss(policy_params, *args):
@@ -115,32 +127,33 @@ def make_train(env, config: APGConfig):
 
     def train(key, params=None):
         params = env.default_params if params is None else params
-        tparams = learner.training_params(params, config.aux_weight)
+        tparams = training_params(params, config.aux_weight)
         k_pi, k_env, k_run = jax.random.split(key, 3)
         policy = pnet.init(k_pi)
         opt_state = opt.init(policy)
         obs, state = venv.reset(k_env, tparams)
-        norm = learner.ObsNorm.create(learner.feature_dim(env))
+        norm = ObsNorm.create(feature_dim(env))
 
         def update(carry, k):
             policy, opt_state, norm, obs, state, steps = carry
             obs, state = jax.lax.stop_gradient((obs, state))  # truncation between windows
             grads, (obs, state, feats, reward, done, info) = grad_fn(
                 policy, norm, obs, state, k, tparams)
-            policy, opt_state, gnorm, bad = learner.guarded_update(opt, grads, opt_state, policy,
-                                                              config.zero_nans)
+            policy, opt_state, gnorm, bad = guarded_update(opt, grads, opt_state, policy,
+                                                           config.zero_nans)
             norm = norm.update(feats) if config.normalize_obs else norm
             steps = steps + window * config.num_envs
-            score, ret = learner.finished_episodes(info, done)
-            metrics = learner.UpdateMetrics(
-                env_steps=steps, score=score, episode_return=ret, grad_norm=gnorm,
-                nonfinite=bad.astype(jnp.int32), grad_steps=jnp.ones((), jnp.int32),
-                loss=-jnp.mean(jnp.sum(reward, 0)))
+            metrics = update_metrics(steps, info, done, gnorm, bad, 1,
+                                     -losses.apg_return(reward))
             return (policy, opt_state, norm, obs, state, steps), metrics
 
         carry = (policy, opt_state, norm, obs, state, jnp.zeros((), jnp.int32))
         (policy, _, norm, *_), metrics = jax.lax.scan(
             update, carry, jax.random.split(k_run, config.updates_for(env)))
-        return learner.Policy(policy, norm), metrics
+        return Policy(policy, norm), metrics
 
     return train
+
+
+LEARNER = Learner(make_train=make_train, make_act=make_act, network=network,
+                  train_env_steps=train_env_steps)

@@ -1,0 +1,44 @@
+"""The optimiser every gradient method uses (Optax) and the update that keeps non-finite
+gradients out of the parameters."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+
+OPTIMISERS = ("adam", "sgd")
+
+
+def make_optimiser(learning_rate: float, max_grad_norm: float | None,
+                   zero_nans: bool = False, optimiser: str = "adam"
+                   ) -> optax.GradientTransformation:
+    """``[zero_nans] -> [clip_by_global_norm(max_grad_norm)] -> adam | sgd``, minimising;
+    ``max_grad_norm=None`` clips nothing."""
+    if optimiser not in OPTIMISERS:
+        raise ValueError(f"unknown optimiser {optimiser!r}; valid: {', '.join(OPTIMISERS)}")
+    parts = [optax.zero_nans()] if zero_nans else []
+    if max_grad_norm is not None:
+        parts.append(optax.clip_by_global_norm(max_grad_norm))
+    parts.append((optax.adam if optimiser == "adam" else optax.sgd)(learning_rate))
+    return optax.chain(*parts)
+
+
+def guarded_update(opt, grads, opt_state, params, zero_nans: bool):
+    """One optimiser step that never lets a non-finite gradient into the parameters.
+
+    Returns ``(params, opt_state, raw_norm, nonfinite)``: the raw (unclipped) global norm
+    and whether the gradient had a NaN/inf. With ``zero_nans`` the optimiser zeroes the
+    non-finite entries and applies the rest (asked for explicitly); otherwise the whole
+    update is skipped (parameters and optimiser state unchanged) and counted.
+    """
+    norm = optax.tree.norm(grads)
+    nonfinite = ~jnp.isfinite(norm)
+    updates, new_opt_state = opt.update(grads, opt_state, params)
+    new_params = optax.apply_updates(params, updates)
+    if zero_nans:
+        return new_params, new_opt_state, norm, nonfinite
+    keep = jnp.logical_not(nonfinite)
+    pick = lambda new, old: jax.tree_util.tree_map(  # noqa: E731
+        lambda a, b: jnp.where(keep, a, b), new, old)
+    return pick(new_params, params), pick(new_opt_state, opt_state), norm, nonfinite
