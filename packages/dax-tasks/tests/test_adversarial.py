@@ -18,9 +18,9 @@ import time
 import jax
 import numpy as np
 import pytest
-from conftest import small_overrides
 
 import dax_tasks
+from conftest import small_overrides
 from dax_tasks import io
 from dax_tasks.core import checks, goals
 from dax_tasks.tasks.cloth import ClothScene

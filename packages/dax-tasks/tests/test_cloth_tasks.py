@@ -11,9 +11,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import Jitted
 
 import dax_tasks
+from conftest import Jitted
 from dax_tasks.tasks import _cloth
 from dax_tasks.tasks import cloth as cloth_tasks
 

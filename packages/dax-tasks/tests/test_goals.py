@@ -4,9 +4,9 @@ import json
 
 import numpy as np
 import pytest
-from conftest import small_overrides
 
 import dax_tasks
+from conftest import small_overrides
 from dax_tasks.core import goals
 from dax_tasks.tasks import push_rope
 

@@ -7,9 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import Jitted
 
 import dax_tasks
+from conftest import Jitted
 from dax_tasks.tasks import push_rope
 
 FAR = np.asarray([0.5, 0.5, 0.1, 0.5, 0.5, 0.1], np.float32)  # a zero-length push, off rope

@@ -11,9 +11,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import Jitted
 
 import dax_tasks
+from conftest import Jitted
 from dax_physics.mpm import total_mass
 from dax_tasks.tasks import whip_rope as wr
 
