@@ -2,7 +2,7 @@
 
 * one writer per file: a second ``generate`` of a file is refused at once (two real
   processes), and a refused run leaves the first one's temporary file alone;
-* every dataset and every attribute is checksummed (format version 4): a flipped bit
+* every dataset and every attribute is checksummed (since format version 4): a flipped bit
   anywhere, ``/goal`` and the pictures included, is caught by ``validate``; older files
   warn that their goal is unchecked;
 * seeds beyond what a ``PRNGKey`` holds are refused before any file exists;
@@ -81,7 +81,7 @@ def test_every_dataset_is_checksummed_and_a_flipped_bit_anywhere_is_caught(small
     assert "goal" in names and "episodes/000000/rgb" in names and \
         "episodes/000000/height" in names, names
     with dax_data.open_file(small) as f:
-        assert f.meta["format_version"] == ff.FORMAT_VERSION == 4
+        assert f.meta["format_version"] == ff.FORMAT_VERSION == 5
         f.verify()
     missed = []
     for name in names:
@@ -281,7 +281,7 @@ def test_two_generate_processes_on_one_file_exactly_one_writes(tmp_path):
     print(f"writer {ends[winner]:.1f} s, refused run {ends[loser]:.1f} s")
     proc = subprocess.run([*CMD, "validate", str(out)], env=env, capture_output=True,
                           text=True, timeout=300)
-    assert proc.returncode == 0 and "ok (10 episodes, format version 4)" in proc.stdout, \
+    assert proc.returncode == 0 and "ok (10 episodes, format version 5)" in proc.stdout, \
         proc.stdout + proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "race.h5"], \
         "a lock or temporary file was left behind"

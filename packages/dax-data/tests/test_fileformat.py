@@ -211,7 +211,7 @@ def test_pictures_are_stored_per_step_as_the_observation_wrapper_renders_them(pi
 
     env = make_task("fold_cloth1")
     meta, episodes = dax_data.load(pictures, as_jax=True)
-    assert meta["format_version"] == ff.FORMAT_VERSION == 4
+    assert meta["format_version"] == ff.FORMAT_VERSION == 5
     assert meta["images"]["modes"] == ["height", "rgb"] and meta["images"]["size"] == 32
     ep = episodes[1]
     assert isinstance(ep.rgb, jax.Array) and ep.rgb.dtype == np.uint8

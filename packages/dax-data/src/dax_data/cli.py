@@ -39,6 +39,16 @@ def _nonneg_int(text: str) -> int:
     return value
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text!r}") from None
+    if not value >= 0:  # NaN too
+        raise argparse.ArgumentTypeError(f"expected seconds >= 0, got {text}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="dax-data", description=(
         "Scripted-expert demonstrations, goal sets and exports for the DaX tasks."))
@@ -65,6 +75,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="picture size in pixels for height / rgb (default 64)")
     g.add_argument("--no-progress", action="store_true", help="no progress bar")
     g.add_argument("--json", action="store_true", help="print the summary as JSON")
+    g.add_argument("--lock-timeout", type=_seconds, default=0.0, metavar="SECONDS",
+                   help="wait up to this long for another process writing the same file "
+                        "(saying who it is) instead of refusing at once (default 0)")
 
     d = sub.add_parser("standard", help="record a task's standard demonstration sets "
                                         "(what the imitation-learning methods train on)")
@@ -75,6 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--image-size", type=_positive_int, default=64, metavar="S",
                    help="picture size of the image sets in pixels (default 64)")
     d.add_argument("--no-progress", action="store_true", help="no progress bar")
+    d.add_argument("--lock-timeout", type=_seconds, default=300.0, metavar="SECONDS",
+                   help="wait up to this long for another process making the same set, "
+                        "saying who it is, then give up (default 300)")
 
     o = sub.add_parser("goals", help="write goal files in dax-tasks' format")
     o.add_argument("--task", required=True, help="task name or 'all'")
@@ -118,7 +134,7 @@ def _generate(a) -> None:
     out = generate(a.task, a.episodes, a.seed, a.out, policy=a.policy,
                    point_stride=a.point_stride, progress=not a.no_progress,
                    overrides=parse_overrides(a.task, a.override), obs=a.obs,
-                   image_size=a.image_size)
+                   image_size=a.image_size, lock_wait=a.lock_timeout)
     if a.json:
         print(json.dumps(out, indent=1))
         return
@@ -147,7 +163,7 @@ def _standard(a) -> None:
                                      f"({env.spec.action_kind} actions)")
                 continue
             path = ensure_standard(task, n, a.out, image_size=a.image_size,
-                                   progress=not a.no_progress)
+                                   progress=not a.no_progress, lock_wait=a.lock_timeout)
             s = get_set(n)
             print(f"{task} {n}: {s.episodes} episodes from seed {s.seed} -> {path}")
 
@@ -163,9 +179,7 @@ def _goals(a) -> None:
 def _inspect(a) -> None:
     with ff.DemoFile(a.file) as f:
         info = f.summary()
-        ep0 = f._f["episodes"][ff.episode_name(0)] if len(f) else None
-        shapes = ({k: list(ep0[k].shape) for k in f._datasets()}
-                  if ep0 is not None else {})
+        shapes = f.episode_shapes(0) if len(f) else {}
     info["episode_0_shapes"] = shapes
     if a.json:
         print(json.dumps(info, indent=1))
@@ -181,10 +195,14 @@ def _inspect(a) -> None:
 
 
 def _validate(a) -> None:
+    from .semantics import check_semantics
+
     with ff.DemoFile(a.file) as f:
         f.verify()
+        notes = check_semantics(f)
         n, ver = len(f), f.meta["format_version"]
-    print(f"{a.file}: ok ({n} episodes, format version {ver})")
+    extra = f"; {'; '.join(notes)}" if notes else ""
+    print(f"{a.file}: ok ({n} episodes, format version {ver}{extra})")
 
 
 def _export(a) -> None:
@@ -240,7 +258,23 @@ def main(argv=None) -> int:
         msg = " ".join(str(err).split()) or type(err).__name__
         print(f"dax-data: error: {msg}", file=sys.stderr)
         return EXIT_ERROR
+    except (MemoryError, RuntimeError) as err:
+        if not _out_of_memory(err):
+            raise
+        print(f"dax-data: error: out of memory ({_short(err)}); ask for less (fewer "
+              f"points, smaller pictures, fewer seeds)", file=sys.stderr)
+        return EXIT_ERROR
     return 0
+
+
+def _out_of_memory(err: BaseException) -> bool:
+    """Whether ``err`` is an allocation failure: NumPy's ``MemoryError`` or XLA's
+    ``RESOURCE_EXHAUSTED`` (a ``RuntimeError``); other ``RuntimeError`` s are bugs."""
+    return isinstance(err, MemoryError) or "RESOURCE_EXHAUSTED" in str(err)
+
+
+def _short(err: BaseException) -> str:
+    return " ".join(str(err).split())[:160] or type(err).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,12 +34,29 @@ indexes) carries checksums in the 1.10 formats used here, but attribute *values*
 (text attributes live in HDF5's global heap, which has none): a version 4 file therefore
 also stores ``checksum``, a SHA-256 over every attribute of the file
 (:func:`attrs_digest`), updated by every write and checked on open.
+
+Checksums catch bit rot, not edits: rewriting a dataset with h5py recomputes its chunks'
+Fletcher-32 sums. Since version 5 every dataset therefore carries ``digest``, a SHA-256
+of its dtype, shape and values (:func:`array_digest`), and every episode group a
+``digest`` over its datasets' digests and its attributes (:func:`episode_digest`); both
+are attributes, so the file's ``checksum`` covers them. Reading checks them (the goal on
+:attr:`DemoFile.goal`, an episode's datasets on :meth:`DemoFile.episode`; ``verify=False``
+skips it) and so does :meth:`DemoFile.verify`, with the checks a value-level edit cannot
+hide from: finite values, actions inside the spec's action box, ``point_steps``, the score
+the last ``r_gt``, ``r_gt`` in (0, 1]. What needs the task itself (the goal equal to the
+task's, ``r_gt`` recomputed from the stored object points) is in
+:mod:`dax_data.semantics`. A version 5 file also records the float ``precision`` its
+episodes ran in, and holds nothing the layout does not name.
+
+Every failure to read a file (HDF5's own errors included) is a :class:`DataFileError`
+naming the file.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import hashlib
 import inspect
 import json
@@ -65,11 +82,20 @@ FORMAT_NAME = "dax-data/demonstrations"
 #: Version 4: ``/goal`` is chunked, compressed and checksummed like the episode datasets
 #: (every dataset of the file carries a Fletcher-32 checksum; :meth:`DemoFile.verify`
 #: refuses a version 4 file with a dataset that does not).
-FORMAT_VERSION = 4
+#: Version 5: a content ``digest`` on every dataset and every episode group, the
+#: ``precision`` attribute, and no object the layout does not name.
+FORMAT_VERSION = 5
 #: The first version whose every dataset and every attribute is checksummed.
 CHECKSUMMED_SINCE = 4
+#: The first version whose datasets and episodes carry content digests.
+DIGESTED_SINCE = 5
 #: The file attribute holding :func:`attrs_digest` (version 4).
 CHECKSUM_ATTR = "checksum"
+#: The attribute of a dataset (:func:`array_digest`) or episode group
+#: (:func:`episode_digest`) holding its content digest (version 5).
+DIGEST_ATTR = "digest"
+#: Float precisions a file records (the physics state's float type while recording).
+PRECISIONS = ("float32", "float64")
 
 #: Per-episode datasets: name -> (dtype, dimensions) where the dimensions name the sizes
 #: checked against each other: T steps, A action dim, O observation dim, K point frames,
@@ -98,7 +124,8 @@ FILE_ATTRS = ("format", "format_version", "task", "fingerprint", "versions", "sp
               "scene_doc", "generator", "created_utc")
 #: Attributes a file of a given version has beyond :data:`FILE_ATTRS`.
 VERSION_ATTRS = {1: (), 2: ("params",), 3: ("params", "images"),
-                 4: ("params", "images", CHECKSUM_ATTR)}
+                 4: ("params", "images", CHECKSUM_ATTR),
+                 5: ("params", "images", CHECKSUM_ATTR, "precision")}
 JSON_ATTRS = ("versions", "spec", "params", "images", "units", "generator")
 
 #: Units of the :class:`dax_tasks.TaskSpec` fields and of the datasets (the ``units``
@@ -134,8 +161,10 @@ class DataFileError(ValueError):
 
 
 class UncheckedDataWarning(UserWarning):
-    """A demonstration file of a format version before 4: its ``/goal`` carries no checksum,
-    so a corrupted goal cannot be detected (the message names the file)."""
+    """A demonstration file of a format version before 5: its datasets carry no content
+    digest, so an edit goes unnoticed; before version 4 its ``/goal`` and attributes carry
+    no checksum either, so their corruption goes unnoticed too (the message names the
+    file)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -225,6 +254,15 @@ def images_meta(modes=(), size: int | None = None, camera=None) -> dict:
             "radius": float(camera.radius)}
 
 
+def current_precision() -> str:
+    """The float type a recording runs in now: ``"float64"`` when JAX's
+    ``jax_enable_x64`` is on (the tasks' physics then runs in float64), else
+    ``"float32"``. The stored datasets are float32 either way."""
+    import jax
+
+    return "float64" if jax.config.jax_enable_x64 else "float32"
+
+
 def header(env, generator: dict, images: dict | None = None) -> dict:
     """The file attributes of a new file for ``env`` (a :class:`dax_tasks.Env` built by
     ``dax_tasks.make``); ``images`` from :func:`images_meta` (default: none)."""
@@ -243,6 +281,7 @@ def header(env, generator: dict, images: dict | None = None) -> dict:
         "scene_doc": scene_doc or "",
         "generator": generator,
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+        "precision": current_precision(),
     }
 
 
@@ -265,12 +304,19 @@ def spec_from_meta(meta: dict):
 
 
 def check_extendable(path, meta: dict) -> None:
-    """Refuse to add episodes to a file of an older format version."""
+    """Refuse to add episodes to a file of an older format version, or recorded in another
+    float precision than the current one (:func:`current_precision`)."""
     if meta["format_version"] != FORMAT_VERSION:
         raise DataFileError(
             f"{path}: written in format version {meta['format_version']} by an older "
             f"dax-data; it can be read, validated and exported, but new episodes go to a new "
             f"file (format version {FORMAT_VERSION}): choose another --out")
+    now = current_precision()
+    if meta["precision"] != now:
+        raise DataFileError(
+            f"{path}: its episodes ran in {meta['precision']}, this process runs in {now} "
+            f"(JAX_ENABLE_X64={'1' if now == 'float64' else '0'}); resume it in "
+            f"{meta['precision']}, or choose another --out")
 
 
 # ---------------------------------------------------------------------- writing
@@ -311,6 +357,24 @@ def attrs_digest(f: h5py.File) -> str:
     return "sha256:" + h.hexdigest()
 
 
+def array_digest(data) -> str:
+    """``"sha256:<hex>"`` of an array's dtype, shape and C-order bytes: the ``digest``
+    attribute of a version 5 dataset."""
+    a = np.ascontiguousarray(data)
+    h = hashlib.sha256(f"{a.dtype.str}|{list(a.shape)}|".encode())
+    h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+def episode_digest(digests: dict, attrs: dict) -> str:
+    """``"sha256:<hex>"`` over an episode's dataset digests (name -> :func:`array_digest`)
+    and its other attributes (``seed``, ``policy``, ``length``, ``score``): the ``digest``
+    attribute of a version 5 episode group."""
+    doc = {"datasets": dict(sorted(digests.items())),
+           "attrs": {k: _attr_value(attrs[k]) for k in sorted(attrs) if k != DIGEST_ATTR}}
+    return "sha256:" + hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
 def seal(f: h5py.File) -> None:
     """Store :func:`attrs_digest` in a version 4 file opened for writing (after any change
     to an attribute, an episode or the goal)."""
@@ -318,12 +382,16 @@ def seal(f: h5py.File) -> None:
         f.attrs[CHECKSUM_ATTR] = attrs_digest(f)
 
 
-def _write_array(group: h5py.Group, name: str, data, chunks=True) -> None:
+def _write_array(group: h5py.Group, name: str, data, chunks=True) -> str:
+    """Write dataset ``name`` (chunked, compressed, checksummed unless empty) with its
+    ``digest`` attribute; returns the digest."""
     data = np.ascontiguousarray(data)
     if data.size == 0:
-        group.create_dataset(name, data=data)
+        ds = group.create_dataset(name, data=data)
     else:
-        group.create_dataset(name, data=data, chunks=chunks, **_COMPRESSION)
+        ds = group.create_dataset(name, data=data, chunks=chunks, **_COMPRESSION)
+    ds.attrs[DIGEST_ATTR] = digest = array_digest(data)
+    return digest
 
 
 def stale_temporaries(path: str | os.PathLike) -> list:
@@ -379,19 +447,46 @@ def append_episode(path: str | os.PathLike, index: int, seed: int, policy: str,
         g.attrs["policy"] = str(policy)
         g.attrs["length"] = int(r_gt.shape[0])
         g.attrs["score"] = float(r_gt[-1]) if r_gt.size else float("nan")
-        for key, (dtype, _) in EPISODE_DATASETS.items():
-            _write_array(g, key, np.asarray(arrays[key], dtype))
+        digests = {key: _write_array(g, key, np.asarray(arrays[key], dtype))
+                   for key, (dtype, _) in EPISODE_DATASETS.items()}
         modes = json.loads(_text(f.attrs["images"]))["modes"] if "images" in f.attrs else []
         missing = sorted(set(modes) - set(arrays))
         if missing:
             raise ValueError(f"episode arrays missing the file's image datasets {missing}")
         for key in modes:
             data = np.asarray(arrays[key], IMAGE_DATASETS[key][0])
-            _write_array(g, key, data, chunks=(1, *data.shape[1:]))
+            digests[key] = _write_array(g, key, data, chunks=(1, *data.shape[1:]))
+        g.attrs[DIGEST_ATTR] = episode_digest(digests, dict(g.attrs))
         seal(f)
 
 
 # ---------------------------------------------------------------------- reading
+#: What reading a damaged or edited file can raise beneath the schema checks: HDF5's own
+#: errors (``OSError``; ``RuntimeError`` such as "Object visitation failed"; ``KeyError``
+#: for a member that vanished), decoding errors (``ValueError``, ``TypeError``) and absurd
+#: sizes (``OverflowError``, ``MemoryError``). :class:`DemoFile` turns each into a
+#: :class:`DataFileError` naming the file.
+READ_ERRORS = (OSError, RuntimeError, LookupError, ValueError, TypeError, OverflowError,
+               MemoryError)
+
+
+def _named(what: str):
+    """Decorator of :class:`DemoFile` methods: a :data:`READ_ERRORS` error becomes a
+    :class:`DataFileError` naming the file and ``what`` was being read."""
+    def wrap(fn):
+        @functools.wraps(fn)
+        def method(self, *args, **kwargs):
+            try:
+                return fn(self, *args, **kwargs)
+            except DataFileError:
+                raise
+            except READ_ERRORS as err:
+                raise DataFileError(f"{self.path}: {what} unreadable, truncated or corrupted "
+                                    f"({_short(err)})") from None
+        return method
+    return wrap
+
+
 class DemoFile:
     """A demonstration file opened for reading; the schema is checked on open.
 
@@ -399,24 +494,32 @@ class DemoFile:
     ``goal_provenance``: dict; ``len(f)``: the number of episodes; ``f[k]``: episode ``k``
     as an :class:`Episode` of NumPy arrays (``as_jax=True`` in :meth:`episode` gives JAX
     arrays). Use as a context manager or call :meth:`close`.
+
+    ``verify`` (default true): check the content digests of what is read (version 5
+    files: the goal on :attr:`goal`, an episode's datasets and the episode's digest on
+    :meth:`episode`), so an edited value is refused; ``False`` skips it. Files of
+    versions before 5 open with an :class:`UncheckedDataWarning` naming what they cannot
+    check. Every error is a :class:`DataFileError` naming the file.
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, verify: bool = True):
         self.path = Path(path)
+        self.check_digests = bool(verify)
         if not self.path.is_file():
-            raise DataFileError(f"{self.path}: file not found")
+            raise DataFileError(f"{self.path}: " + ("not a file" if self.path.exists()
+                                                    else "file not found"))
         try:
             self._f = h5py.File(self.path, "r")
-        except OSError as err:
+        except READ_ERRORS as err:
             raise DataFileError(f"{self.path}: not a readable HDF5 file, truncated or "
                                 f"corrupted ({_short(err)})") from None
         try:
             self._check_schema()
         except DataFileError:
-            self._f.close()
+            self.close()
             raise
-        except (OSError, KeyError, ValueError, TypeError) as err:
-            self._f.close()
+        except READ_ERRORS as err:
+            self.close()
             raise DataFileError(f"{self.path}: unreadable metadata, truncated or corrupted "
                                 f"({_short(err)})") from None
 
@@ -428,11 +531,7 @@ class DemoFile:
         f = self._f
         ver = self._check_version()
         self.meta = meta = self._read_meta(ver)
-        if ver < CHECKSUMMED_SINCE:
-            warnings.warn(f"{self.path}: format version {ver}: /goal and the attributes "
-                          f"carry no checksum, so their corruption goes unnoticed (the goal is "
-                          f"unchecked; record the file again with this dax-data to check it)",
-                          UncheckedDataWarning, stacklevel=3)
+        self._warn_unchecked(ver)
         self.image_modes = tuple(self._check_images(meta["images"]))
         n_goal = self._check_goal()
         names = self._episode_names()
@@ -440,11 +539,30 @@ class DemoFile:
         for name in names:
             dims = self._check_episode(name, dims, meta["images"].get("size"), n_goal)
         self._names = names
+        if ver >= DIGESTED_SINCE:
+            self._check_members()
+            if meta["precision"] not in PRECISIONS:
+                self._fail(f"file attribute 'precision' must be one of {list(PRECISIONS)}, "
+                           f"got {meta['precision']!r}")
         if ver >= CHECKSUMMED_SINCE:
             stored, computed = meta[CHECKSUM_ATTR], attrs_digest(f)
             if stored != computed:
                 self._fail(f"metadata checksum mismatch: an attribute was changed or "
                            f"corrupted (stored {stored[:19]}..., computed {computed[:19]}...)")
+
+    def _warn_unchecked(self, ver: int) -> None:
+        """The :class:`UncheckedDataWarning` of a file older than version 5."""
+        if ver < CHECKSUMMED_SINCE:
+            warnings.warn(f"{self.path}: format version {ver}: /goal and the attributes "
+                          f"carry no checksum, so their corruption goes unnoticed (the goal is "
+                          f"unchecked), and no dataset carries a content digest, so an edit "
+                          f"goes unnoticed; record the file again with this dax-data to "
+                          f"check it", UncheckedDataWarning, stacklevel=4)
+        elif ver < DIGESTED_SINCE:
+            warnings.warn(f"{self.path}: format version {ver}: no dataset carries a content "
+                          f"digest, so an edit that rewrites a dataset (its chunk checksums "
+                          f"recomputed) goes unnoticed; record the file again with this "
+                          f"dax-data to check it", UncheckedDataWarning, stacklevel=4)
 
     def _check_version(self) -> int:
         """The file's format version, checked: a dax-data file of a version this reads."""
@@ -453,7 +571,8 @@ class DemoFile:
         if _text(fmt) != FORMAT_NAME:
             self._fail(f"not a dax-data demonstration file (format attribute {fmt!r})")
         ver = f.attrs.get("format_version")
-        if ver is None or not np.issubdtype(np.asarray(ver).dtype, np.integer):
+        if ver is None or np.shape(ver) != () or \
+                not np.issubdtype(np.asarray(ver).dtype, np.integer):
             self._fail(f"missing or non-integer format_version ({ver!r})")
         ver = int(ver)
         if ver > FORMAT_VERSION:
@@ -476,6 +595,9 @@ class DemoFile:
                     value = json.loads(_text(value))
                 except (TypeError, ValueError):
                     self._fail(f"file attribute {key!r} is not valid JSON")
+                if not isinstance(value, dict):
+                    self._fail(f"file attribute {key!r} must be a JSON object, got "
+                               f"{type(value).__name__}")
             elif key == "format_version":
                 value = int(value)
             else:
@@ -492,6 +614,8 @@ class DemoFile:
         goal = f["goal"]
         if goal.ndim != 2 or goal.shape[1] != 3:
             self._fail(f"/goal must have shape (N, 3), got {goal.shape}")
+        if goal.dtype != np.float32:
+            self._fail(f"/goal has dtype {goal.dtype}, expected float32")
         return goal.shape[0]
 
     def _episode_names(self) -> list:
@@ -506,6 +630,21 @@ class DemoFile:
                        f"{names[:5]}{'...' if len(names) > 5 else ''}")
         return names
 
+    def _check_members(self) -> None:
+        """A version 5 file holds exactly the objects the layout names: ``/goal``,
+        ``/episodes`` and in each episode group its datasets."""
+        f = self._f
+        extra = sorted(set(f.keys()) - {"goal", "episodes"})
+        if extra:
+            self._fail(f"unexpected object(s) {['/' + e for e in extra]} (not part of the "
+                       f"format: the file was edited)")
+        want = set(self._datasets())
+        for name in self._names:
+            extra = sorted(set(f["episodes"][name].keys()) - want)
+            if extra:
+                self._fail(f"episode {int(name)}: unexpected object(s) {extra} (not part of "
+                           f"the format: the file was edited)")
+
     def _check_episode(self, name: str, dims: dict, image_size, n_goal: int) -> dict:
         """Check episode group ``name``: its attributes and every dataset's dtype and shape,
         the sizes named in :data:`EPISODE_DATASETS` agreeing within the episode, with the
@@ -518,7 +657,10 @@ class DemoFile:
         for key in EPISODE_ATTRS:
             if key not in g.attrs:
                 self._fail(f"{where}: missing attribute {key!r}")
-        sizes = {"T": int(g.attrs["length"]), **dims, "S": image_size}
+        length = g.attrs["length"]
+        if np.shape(length) != () or not np.issubdtype(np.asarray(length).dtype, np.integer):
+            self._fail(f"{where}: attribute 'length' must be an integer, got {length!r}")
+        sizes = {"T": int(length), **dims, "S": image_size}
         for key, (dtype, shape) in self._datasets().items():
             if key not in g or not isinstance(g[key], h5py.Dataset):
                 self._fail(f"{where}: missing dataset {key!r}")
@@ -572,12 +714,47 @@ class DemoFile:
         """The datasets every episode of this file has: name -> (dtype, dimensions)."""
         return {**EPISODE_DATASETS, **{m: IMAGE_DATASETS[m] for m in self.image_modes}}
 
+    # -- digests
+    @property
+    def digested(self) -> bool:
+        """Whether the file's datasets carry content digests (format version 5 on)."""
+        return self.meta["format_version"] >= DIGESTED_SINCE
+
+    def _checked_digest(self, ds, data, where: str) -> str:
+        """The digest of ``data`` (the values just read from dataset ``ds``), checked
+        against the one stored with it (``DataFileError`` if it is missing or differs)."""
+        computed = array_digest(data)
+        stored = ds.attrs.get(DIGEST_ATTR)
+        if stored is None:
+            self._fail(f"{where} carries no content digest (format version "
+                       f"{self.meta['format_version']} stores one with every dataset)")
+        if _text(stored) != computed:
+            self._fail(f"{where}: content digest mismatch: its values were changed after it "
+                       f"was written (stored {_text(stored)[:19]}..., computed "
+                       f"{computed[:19]}...)")
+        return computed
+
+    def _check_episode_digest(self, k: int, g, arrays: dict) -> None:
+        """Each dataset's digest and the episode group's over them and its attributes."""
+        digests = {key: self._checked_digest(g[key], data, f"episode {k}: dataset {key!r}")
+                   for key, data in arrays.items()}
+        stored = g.attrs.get(DIGEST_ATTR)
+        if stored is None or _text(stored) != episode_digest(digests, dict(g.attrs)):
+            self._fail(f"episode {k}: episode digest mismatch or missing: its datasets or "
+                       f"attributes were changed after it was recorded")
+
     # -- access
     @property
+    @_named("/goal")
     def goal(self) -> np.ndarray:
-        return np.asarray(self._f["goal"][()], np.float32)
+        ds = self._f["goal"]
+        data = ds[()]
+        if self.check_digests and self.digested:
+            self._checked_digest(ds, data, "/goal")
+        return np.asarray(data, np.float32)
 
     @property
+    @_named("/goal provenance")
     def goal_provenance(self) -> dict:
         return json.loads(_text(self._f["goal"].attrs["provenance"]))
 
@@ -592,23 +769,40 @@ class DemoFile:
             yield self.episode(k)
 
     def episode(self, k: int, as_jax: bool = False) -> Episode:
+        """Episode ``k`` (its content digests checked unless the file was opened with
+        ``verify=False``)."""
         if not (isinstance(k, (int, np.integer)) and 0 <= k < len(self)):
             raise DataFileError(f"{self.path}: no episode {k!r} (the file has {len(self)}: "
                                 f"0..{len(self) - 1})")
-        g = self._f["episodes"][episode_name(int(k))]
+        return self._episode(int(k), as_jax, self.check_digests)
+
+    def _episode(self, k: int, as_jax: bool, digests: bool) -> Episode:
         try:
+            g = self._f["episodes"][episode_name(k)]
             arrays = {key: g[key][()] for key in self._datasets()}
-        except (OSError, ValueError) as err:
+            if digests and self.digested:
+                self._check_episode_digest(k, g, arrays)
+            attrs = dict(index=k, seed=int(g.attrs["seed"]), policy=_text(g.attrs["policy"]),
+                         score=float(g.attrs["score"]))
+        except DataFileError:
+            raise
+        except READ_ERRORS as err:
             raise DataFileError(f"{self.path}: episode {k}: data unreadable, truncated or "
                                 f"corrupted ({_short(err)})") from None
         if as_jax:
             import jax.numpy as jnp
 
             arrays = {key: jnp.asarray(v) for key, v in arrays.items()}
-        return Episode(index=int(k), seed=int(g.attrs["seed"]),
-                       policy=_text(g.attrs["policy"]), score=float(g.attrs["score"]),
-                       **arrays)
+        return Episode(**attrs, **arrays)
 
+    @_named("episode shapes")
+    def episode_shapes(self, k: int) -> dict:
+        """The shapes of episode ``k``'s datasets, by name (read from the file's metadata,
+        not its data)."""
+        g = self._f["episodes"][episode_name(int(k))]
+        return {key: list(g[key].shape) for key in self._datasets()}
+
+    @_named("metadata")
     def summary(self) -> dict:
         """A JSON-compatible summary: metadata, episode count and scores."""
         scores = [float(self._f["episodes"][n].attrs["score"]) for n in self._names]
@@ -623,47 +817,107 @@ class DemoFile:
             out["score_sem"] = sem(scores)
         return out
 
+    # -- full check
+    @_named("data")
     def verify(self) -> None:
-        """Read every dataset (checking HDF5 checksums) and check values are finite and
-        consistent (score = last r_gt, point_steps increasing and ending at T). In a version
-        4 file every non-empty dataset must carry a checksum."""
+        """Read every dataset (checking HDF5 checksums and, in a version 5 file, the content
+        digests) and check the values: finite, actions inside the spec's action box,
+        ``r_gt`` in [0, 1], the score the last ``r_gt``, the rewards equal to ``r_gt`` when
+        the auxiliary weight is 0, ``point_steps`` increasing from 0 to the length. In a
+        version 4 or later file every non-empty dataset must carry a checksum. The checks
+        that need the task (the goal, ``r_gt`` from the stored points) are
+        :func:`dax_data.semantics.check_semantics`."""
+        for name in self._dataset_names():
+            self._read_dataset(name)
+        goal = self._goal_checked()
+        if not np.all(np.isfinite(goal)):
+            self._fail("/goal contains NaN or inf")
+        box = self._action_box()
+        aux = self.meta.get("params", {}).get("aux_weight")
+        for k in range(len(self)):
+            ep = self._episode(k, False, True)
+            self._check_values(k, ep, box, aux)
+
+    def _goal_checked(self) -> np.ndarray:
+        check, self.check_digests = self.check_digests, True
+        try:
+            return self.goal
+        finally:
+            self.check_digests = check
+
+    def _dataset_names(self) -> list:
         datasets = []
         self._f.visititems(lambda name, obj: datasets.append(name)
                            if isinstance(obj, h5py.Dataset) else None)
-        for name in datasets:
-            ds = self._f[name]
-            if self.meta["format_version"] >= CHECKSUMMED_SINCE and ds.size and \
-                    not ds.fletcher32:
-                self._fail(f"dataset /{name} carries no checksum (format version "
-                           f"{self.meta['format_version']} checksums every dataset)")
-            try:
-                ds[()]
-            except (OSError, ValueError) as err:
-                parts = name.split("/")
-                if len(parts) == 3 and parts[0] == "episodes" and parts[1].isdigit():
-                    self._fail(f"episode {int(parts[1])}: data unreadable, truncated or "
-                               f"corrupted (dataset {parts[2]!r}: {_short(err)})")
-                self._fail(f"/{name}: data unreadable, truncated or corrupted "
-                           f"({_short(err)})")
-        if not np.all(np.isfinite(self.goal)):
-            self._fail("/goal contains NaN or inf")
-        for k in range(len(self)):
-            ep = self.episode(k)
-            for key in ("actions", "observations", "rewards", "r_gt", "points",
-                        "end_effector", *(["height"] if ep.height is not None else [])):
-                if not np.all(np.isfinite(getattr(ep, key))):
-                    self._fail(f"episode {k}: dataset {key!r} contains NaN or inf")
-            steps = ep.point_steps
-            if steps.size == 0 or steps[-1] != ep.length or np.any(np.diff(steps) <= 0) \
-                    or steps[0] != 0:
-                self._fail(f"episode {k}: point_steps must increase from 0 to the episode "
-                           f"length {ep.length}, got {steps.tolist()}")
-            if ep.length and not np.float32(ep.score) == ep.r_gt[-1]:
-                self._fail(f"episode {k}: score {ep.score} is not the last r_gt "
-                           f"{float(ep.r_gt[-1])}")
+        return datasets
+
+    def _read_dataset(self, name: str) -> None:
+        """Read dataset ``name`` whole (HDF5 checks its chunks' checksums)."""
+        ds = self._f[name]
+        if self.meta["format_version"] >= CHECKSUMMED_SINCE and ds.size and \
+                not ds.fletcher32:
+            self._fail(f"dataset /{name} carries no checksum (format version "
+                       f"{self.meta['format_version']} checksums every dataset)")
+        try:
+            ds[()]
+        except READ_ERRORS as err:
+            parts = name.split("/")
+            if len(parts) == 3 and parts[0] == "episodes" and parts[1].isdigit():
+                self._fail(f"episode {int(parts[1])}: data unreadable, truncated or "
+                           f"corrupted (dataset {parts[2]!r}: {_short(err)})")
+            self._fail(f"/{name}: data unreadable, truncated or corrupted "
+                       f"({_short(err)})")
+
+    def _action_box(self):
+        """``(low, high)`` float32 of the spec's action box (``None`` if the spec has none)."""
+        spec = self.meta["spec"]
+        if "action_low" not in spec or "action_high" not in spec:
+            return None
+        try:
+            low = np.asarray(spec["action_low"], np.float32)
+            high = np.asarray(spec["action_high"], np.float32)
+        except (TypeError, ValueError):
+            self._fail("the spec's action_low / action_high are not lists of numbers")
+        return low, high
+
+    def _check_values(self, k: int, ep: Episode, box, aux) -> None:
+        """The value checks of :meth:`verify` for episode ``k``."""
+        for key in ("actions", "observations", "rewards", "r_gt", "points",
+                    "end_effector", *(["height"] if ep.height is not None else [])):
+            if not np.all(np.isfinite(getattr(ep, key))):
+                self._fail(f"episode {k}: dataset {key!r} contains NaN or inf")
+        if box is not None:
+            low, high = box
+            if low.shape != ep.actions.shape[1:]:
+                self._fail(f"episode {k}: actions of {ep.actions.shape[1]} entries, the "
+                           f"spec's action box has {low.shape}")
+            outside = np.nonzero(np.any((ep.actions < low) | (ep.actions > high), axis=1))[0]
+            if outside.size:
+                t = int(outside[0])
+                self._fail(f"episode {k}: action {t} {ep.actions[t].tolist()} lies outside "
+                           f"the task's action box (low {low.tolist()}, high {high.tolist()})")
+        if np.any((ep.r_gt < 0) | (ep.r_gt > 1)):
+            self._fail(f"episode {k}: r_gt outside [0, 1] (it is exp(-lam D))")
+        if aux == 0 and not np.array_equal(ep.rewards, ep.r_gt):
+            self._fail(f"episode {k}: rewards differ from r_gt although aux_weight is 0")
+        steps = ep.point_steps
+        if steps.size == 0 or steps[-1] != ep.length or np.any(np.diff(steps) <= 0) \
+                or steps[0] != 0:
+            self._fail(f"episode {k}: point_steps must increase from 0 to the episode "
+                       f"length {ep.length}, got {steps.tolist()}")
+        if ep.length and not np.float32(ep.score) == ep.r_gt[-1]:
+            self._fail(f"episode {k}: score {ep.score} is not the last r_gt "
+                       f"{float(ep.r_gt[-1])}")
 
     def close(self) -> None:
-        self._f.close()
+        """Close the file (errors closing a damaged file are ignored: nothing was
+        written)."""
+        f = getattr(self, "_f", None)
+        if f is not None:
+            try:
+                f.close()
+            except READ_ERRORS:
+                pass
 
     def __enter__(self):
         return self
@@ -672,14 +926,20 @@ class DemoFile:
         self.close()
 
 
-def open_file(path: str | os.PathLike) -> DemoFile:
-    """Open a demonstration file for reading (schema checked); see :class:`DemoFile`."""
-    return DemoFile(path)
+def open_file(path: str | os.PathLike, verify: bool = True) -> DemoFile:
+    """Open a demonstration file for reading (schema checked; content digests checked as
+    values are read unless ``verify=False``); see :class:`DemoFile`."""
+    return DemoFile(path, verify=verify)
 
 
-def load(path: str | os.PathLike, as_jax: bool = False) -> tuple[dict, list[Episode]]:
-    """``(meta, episodes)``: the file attributes and every episode, as NumPy (or JAX)."""
-    with DemoFile(path) as f:
+def load(path: str | os.PathLike, as_jax: bool = False,
+         verify: bool = True) -> tuple[dict, list[Episode]]:
+    """``(meta, episodes)``: the file attributes and every episode, as NumPy (or JAX), each
+    dataset's content digest checked, the goal's too (``verify=False`` skips that); a
+    :class:`DataFileError` naming the file otherwise."""
+    with DemoFile(path, verify=verify) as f:
+        if verify:
+            f.goal  # noqa: B018 - reading it checks its digest
         return f.meta, [f.episode(k, as_jax=as_jax) for k in range(len(f))]
 
 

@@ -162,6 +162,11 @@ class Recorder:
         self._step = jax.jit(env.step)
         self._expert = jax.jit(env.expert_action) if policy == "expert" else None
         self.image_modes = tuple(m for m in self.obs if m in ff.IMAGE_DATASETS)
+        from dax_tasks.core.checks import check_run_memory
+
+        # before anything is compiled or allocated: an episode's states and its pictures
+        check_run_memory(env, image_size=self.image_size if self.image_modes else None,
+                         frames=(env.horizon + 1) if self.image_modes else 0)
         self.camera = None
         if self.image_modes:
             from dax_tasks.viz import Camera
@@ -229,6 +234,13 @@ class Recorder:
                 "end_effector": np.stack(ee), **{k: np.stack(v) for k, v in images.items()}}
 
 
+def _say(message: str) -> None:
+    """One line on stderr (what :func:`generate` says while it waits for a lock)."""
+    import sys
+
+    print(f"dax-data: {message}", file=sys.stderr, flush=True)
+
+
 def _generator_args(task_name, seed, policy, point_stride, overrides, obs,
                     image_size) -> dict:
     return {"task": task_name, "seed": int(seed), "policy": policy,
@@ -275,7 +287,7 @@ def _check_task(path: Path, f: ff.DemoFile, env) -> None:
 def generate(task_name: str, episodes: int, seed: int, out, policy: str = "expert",
              point_stride: int = 1, overrides: dict | None = None,
              progress: bool = True, obs=("state",), image_size: int = 64,
-             lock_wait: float = 0.0) -> dict:
+             lock_wait: float = 0.0, notify=_say) -> dict:
     """Record ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) into ``out``.
 
     ``obs``: the observation modes to store besides the task's ``state`` observation:
@@ -286,26 +298,30 @@ def generate(task_name: str, episodes: int, seed: int, out, policy: str = "exper
     episode is committed atomically. Returns a summary: episodes recorded now, seconds per
     episode, file size, scores.
 
-    One writer per file: the run holds the file's lock (:func:`dax_tasks.io.exclusive`,
-    ``.<name>.lock`` beside it) from its first look at the file to its last episode, so a
-    second ``generate`` of the same file is refused at once with
+    One writer per real file: the run holds the file's lock (:func:`dax_tasks.io.exclusive`,
+    ``.<name>.lock`` beside the real file: a symbolic link ``out`` is written through to
+    its target, under the target's lock) from its first look at the file to its last
+    episode, so a second ``generate`` of the same file is refused at once with
     :class:`dax_tasks.io.FileLockedError` naming the holder (or waits up to ``lock_wait``
-    seconds for it); temporary files a killed writer left are removed only under the lock.
-    Seeds must lie in ``0 ..`` :data:`MAX_SEED`. Arguments are checked before any file is
-    created.
+    seconds for it, saying once who holds it); temporary files a killed writer left are
+    removed only under the lock. Seeds must lie in ``0 ..`` :data:`MAX_SEED`. Arguments,
+    the spec's sizes and the memory an episode needs (states and pictures,
+    :func:`dax_tasks.core.checks.check_run_memory`) are checked before any file is
+    created. A file is extended only in the float precision it was recorded in.
     """
     if not (isinstance(episodes, int) and not isinstance(episodes, bool) and episodes > 0):
         raise ValueError(f"episodes must be a positive int, got {episodes!r}")
     seed = check_seeds(seed, episodes)
     obs, image_size = check_obs(obs), check_image_size(image_size)
     path = Path(out)
-    if path.exists() and not path.is_file():
-        raise ValueError(f"{path}: exists and is not a file")
-    if not path.parent.is_dir():
-        raise ValueError(f"{path}: directory {path.parent} does not exist")
-    from dax_tasks.io import exclusive
+    from dax_tasks.io import exclusive, real_path
 
-    with exclusive(path, wait=lock_wait):
+    real = real_path(path)  # a link is written through to its target
+    if real.exists() and not real.is_file():
+        raise ValueError(f"{path}: exists and is not a file")
+    if not real.parent.is_dir():
+        raise ValueError(f"{path}: directory {real.parent} does not exist")
+    with exclusive(path, wait=lock_wait, notify=notify):
         return _generate_locked(task_name, episodes, seed, path, policy, point_stride,
                                 overrides, progress, obs, image_size)
 
@@ -334,12 +350,33 @@ def _generate_locked(task_name, episodes, seed, path, policy, point_stride, over
         attrs = ff.header(env, {**args, "episodes": episodes}, recorder.images_meta)
         ff.create(path, attrs, env.goal, env.goal_provenance or {})
         done = 0
-    _set_target(path, args, episodes)
+    times = []
+    try:
+        _set_target(path, args, episodes)
+        _record(recorder, path, policy, seed, done, episodes, times, progress)
+    except BaseException:
+        if done == 0 and not times:  # this run made the file and committed nothing: a
+            # corrected command must not find (and refuse) an empty file of other arguments
+            from dax_tasks.io import real_path
+
+            real_path(path).unlink(missing_ok=True)
+        raise
+    with ff.DemoFile(path) as f:
+        summary = f.summary()
+    summary.update(recorded_now=len(times), resumed_from=done,
+                   seconds_per_episode=float(np.median(times)) if times else None,
+                   first_episode_seconds=times[0] if times else None)
+    return summary
+
+
+def _record(recorder, path: Path, policy: str, seed: int, done: int, episodes: int,
+            times: list, progress: bool) -> None:
+    """Record and commit episodes ``done .. episodes - 1``, appending each one's seconds to
+    ``times``."""
     from tqdm.auto import tqdm
 
-    times = []
-    with tqdm(total=episodes, initial=done, desc=f"{task_name} ({policy})", unit="ep",
-              disable=not progress, dynamic_ncols=True) as bar:
+    with tqdm(total=episodes, initial=done, desc=f"{recorder.env.spec.name} ({policy})",
+              unit="ep", disable=not progress, dynamic_ncols=True) as bar:
         for i in range(done, episodes):
             t0 = time.perf_counter()
             arrays = recorder.episode(seed + i)
@@ -347,12 +384,6 @@ def _generate_locked(task_name, episodes, seed, path, policy, point_stride, over
             times.append(time.perf_counter() - t0)
             bar.set_postfix(score=f"{float(arrays['r_gt'][-1]):.3f}")
             bar.update(1)
-    with ff.DemoFile(path) as f:
-        summary = f.summary()
-    summary.update(recorded_now=len(times), resumed_from=done,
-                   seconds_per_episode=float(np.median(times)) if times else None,
-                   first_episode_seconds=times[0] if times else None)
-    return summary
 
 
 def _set_target(path: Path, args: dict, episodes: int) -> None:
@@ -384,6 +415,9 @@ def score(task_name: str, seeds: int = 20, seed: int = 0,
     from dax_tasks.core.wrappers import VmapWrapper
 
     env = make_task(task_name, overrides=overrides)
+    from dax_tasks.core.checks import check_run_memory
+
+    check_run_memory(env, batch=seeds)  # all seeds run as one batch
     spec = env.spec
     batch = VmapWrapper(env, batch_size=seeds)
     reset, step = jax.jit(batch.reset), jax.jit(batch.step)

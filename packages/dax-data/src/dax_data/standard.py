@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import os
 from pathlib import Path
 
@@ -54,6 +53,9 @@ STANDARD_SETS = {
 }
 #: Picture size [pixels] of the image sets, unless asked otherwise.
 IMAGE_SIZE = 64
+#: Seconds :func:`ensure_standard` waits for another process making the same set before
+#: it gives up (``dax-data standard --lock-timeout``).
+LOCK_TIMEOUT = 300.0
 MACRO_KINDS = ("push", "pick_place")
 
 
@@ -91,11 +93,14 @@ def standard_path(env, name: str, directory=None, image_size: int = IMAGE_SIZE) 
 
 
 def ensure_standard(task: str, name: str, directory=None, overrides: dict | None = None,
-                    image_size: int = IMAGE_SIZE, progress: bool = False) -> Path:
+                    image_size: int = IMAGE_SIZE, progress: bool = False,
+                    lock_wait: float = LOCK_TIMEOUT) -> Path:
     """The path of set ``name`` of ``task`` (``dax_tasks.make(task, **overrides)``) in
     ``directory``, recorded now if it is missing or incomplete (a complete file is opened
     and its schema checked, nothing recorded). ``ValueError`` if the set does not apply to
-    the task or the task has no scripted expert."""
+    the task or the task has no scripted expert. Another process making the same set is
+    waited for up to ``lock_wait`` seconds (saying once on stderr who it is), then
+    :class:`dax_tasks.io.FileLockedError`."""
     from .record import generate, make_task
 
     env = make_task(task, overrides)
@@ -115,5 +120,5 @@ def ensure_standard(task: str, name: str, directory=None, overrides: dict | None
     # another process making the same set: wait for it (the kernel frees its lock when it
     # exits), then find the set complete
     generate(task, s.episodes, s.seed, path, policy="expert", overrides=overrides,
-             progress=progress, obs=s.obs, image_size=image_size, lock_wait=math.inf)
+             progress=progress, obs=s.obs, image_size=image_size, lock_wait=lock_wait)
     return path

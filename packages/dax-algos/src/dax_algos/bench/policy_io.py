@@ -3,9 +3,12 @@ pickle), written atomically, with a SHA-256 checksum over the metadata and every
 
 Layout: ``{"format": "dax-policy", "version": 1, "meta": <JSON text>, "params": <nested
 dict of arrays>, "sha256": <hex>}``. ``<path>.json`` beside it repeats the metadata for
-people; loading never reads it. A truncated, corrupted or foreign file, or one made for
-something other than what the caller expects (``expect``), is refused with a one-line
-``ValueError`` that starts with the path.
+people; loading never reads it. A truncated, corrupted or foreign file, one whose
+parameters are not arrays of finite real numbers (a forged file with a recomputed
+checksum and NaN weights included), or one made for something other than what the caller
+expects (``expect``), is refused with a one-line ``ValueError`` that starts with the path.
+The shapes a method's network expects are checked by its loader
+(:func:`dax_algos.bench.trained.load_trained`).
 """
 
 from __future__ import annotations
@@ -97,9 +100,34 @@ def _read(path) -> tuple[dict, dict]:
     meta_text, params = payload.get("meta"), payload.get("params")
     if not isinstance(meta_text, str) or not isinstance(params, dict):
         raise ValueError(f"{path}: malformed {FORMAT} file")
-    if _digest(meta_text, params) != payload.get("sha256"):
+    try:
+        digest = _digest(meta_text, params)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{path}: malformed {FORMAT} file ({err})") from None
+    if digest != payload.get("sha256"):
         raise ValueError(f"{path}: checksum mismatch: the file is corrupted")
-    return json.loads(meta_text), params
+    _check_leaves(path, params)
+    try:
+        meta = json.loads(meta_text)
+    except ValueError:
+        raise ValueError(f"{path}: malformed {FORMAT} file (its metadata is not JSON)"
+                         ) from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: malformed {FORMAT} file (its metadata is not an object)")
+    return meta, params
+
+
+def _check_leaves(path, params: dict) -> None:
+    """Every leaf of ``params`` an array of real numbers, the float ones finite
+    (``ValueError`` naming the file and the leaf)."""
+    for where, leaf in _leaves(params):
+        a = np.asarray(leaf) if isinstance(leaf, (np.ndarray, np.generic)) else None
+        if a is None or a.dtype.kind not in "fiu":
+            raise ValueError(f"{path}: parameter {where} is not an array of real numbers "
+                             f"({type(leaf).__name__}{'' if a is None else ' ' + str(a.dtype)})")
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise ValueError(f"{path}: parameter {where} contains NaN or inf; refusing to "
+                             f"load a broken policy")
 
 
 def read_meta(path) -> dict:

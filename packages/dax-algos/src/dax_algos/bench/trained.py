@@ -76,9 +76,13 @@ def save_trained(path, method: str, env, config, policy: Policy, **extra_meta) -
 
 def load_trained(path, env, method: str | None = None, config=None):
     """``(act, policy)`` of a saved policy for ``env``: ``act(policy, feats) -> z`` the
-    deterministic normalised action. Refused (``ValueError`` naming the difference) when
-    the file was made for another task or task spec, another method (if ``method`` is
-    given) or another config (if ``config`` is given)."""
+    deterministic normalised action. Refused (``ValueError`` naming the file and the
+    difference) when the file was made for another task or task spec, another method (if
+    ``method`` is given) or another config (if ``config`` is given), or when its
+    parameters are not finite (:func:`policy_io.load_policy`) or not shaped as the
+    method's network for ``env`` and the config expects (the observation normaliser's
+    ``mean`` and ``var`` of the policy's ``feature_dim(env)`` entries, ``var >= 0`` and a
+    positive ``count``), before anything uses them."""
     meta = policy_io.read_meta(path)
     method = method or meta.get("method")
     m = _learner_method(path, method)
@@ -87,12 +91,37 @@ def load_trained(path, env, method: str | None = None, config=None):
     if config is not None:
         expect["config"] = _config_json(config)
     tree, meta = policy_io.load_policy(path, expect)
-    config = config or _config_from_json(m.config_cls, meta["config"])
-    params = m.learner.network(env, config).from_tree(tree["policy"])
+    try:
+        config = config or _config_from_json(m.config_cls, meta["config"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"{path}: its config does not build a {method} config ({err})"
+                         ) from None
+    if not isinstance(tree.get("policy"), dict):
+        raise ValueError(f"{path}: holds no policy parameters")
+    try:
+        params = m.learner.network(env, config).from_tree(tree["policy"])
+    except ValueError as err:
+        raise ValueError(f"{path}: {err} (for {method} on {env.spec.name} with this "
+                         f"config)") from None
     on = tree.get("obs_norm")
-    norm = None if on is None else ObsNorm(
-        jnp.asarray(on["mean"]), jnp.asarray(on["var"]), jnp.asarray(on["count"]))
+    norm = None if on is None else _obs_norm(path, on, feature_dim(env))
     return m.learner.make_act(env, config), Policy(params, norm)
+
+
+def _obs_norm(path, on, dim: int) -> ObsNorm:
+    """The observation normaliser stored as ``on`` (``mean`` and ``var`` of ``dim``
+    entries, ``var >= 0``, a positive scalar ``count``), checked."""
+    if not isinstance(on, dict) or set(on) != {"mean", "var", "count"}:
+        raise ValueError(f"{path}: obs_norm must hold mean, var and count")
+    shapes = {"mean": (dim,), "var": (dim,), "count": ()}
+    arrays = {k: np.asarray(on[k]) for k in shapes}
+    for k, shape in shapes.items():
+        if arrays[k].shape != shape:
+            raise ValueError(f"{path}: obs_norm/{k} has shape {arrays[k].shape}, expected "
+                             f"{shape} (the policy's {dim} input features)")
+    if np.any(arrays["var"] < 0) or not arrays["count"] > 0:
+        raise ValueError(f"{path}: obs_norm has a negative variance or a count <= 0")
+    return ObsNorm(*(jnp.asarray(arrays[k]) for k in ("mean", "var", "count")))
 
 
 def _learner_method(path, method: str) -> LearnerMethod:

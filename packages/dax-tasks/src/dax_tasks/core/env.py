@@ -86,6 +86,25 @@ def _float_dtype(physics):
     return jnp.float32
 
 
+def _real_array(value, what: str):
+    """``value`` as a JAX array of real numbers (float, int or uint); ``ValueError`` naming
+    ``what`` for complex numbers (``0.1+5j`` would act as 0.1), text, bools or objects.
+    The dtype is static, so this holds under ``jit`` too."""
+    try:
+        a = jnp.asarray(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{what} is not an array of numbers ({err})") from None
+    if a.dtype.kind not in "fiu":
+        raise ValueError(f"{what} is not an array of real numbers (dtype {a.dtype})")
+    return a
+
+
+def _eager() -> bool:
+    """Whether this code runs outside ``jit`` / ``scan`` tracing (where an operation gives a
+    concrete array, not a tracer; ``vmap`` and ``grad`` of concrete values included)."""
+    return not isinstance(jnp.add(0, 0), jax.core.Tracer)
+
+
 def float_dtype():
     """The float type tasks compute in: float32, or float64 when JAX's ``jax_enable_x64``
     is on (then :meth:`Env.reset` returns a float64 physics state)."""
@@ -323,7 +342,7 @@ class Env:
         (:func:`float_dtype`); the tasks draw their random numbers in float32 either way,
         so a seed gives the same initial state in both precisions, up to float32 rounding.
         """
-        params = self.default_params if params is None else params
+        params = self._checked_shapes(params)
         physics = cast_floats(self.init(key, params), float_dtype())
         state = EnvState(physics=physics, t=jnp.zeros((), jnp.int32),
                          finite=jnp.asarray(True))
@@ -335,18 +354,24 @@ class Env:
         The action is clipped to the spec's bounds (zero gradient across a clipped
         dimension) in its own precision, then cast to the physics state's float type, so a
         finite float64 action beyond float32's range is clipped, not turned into inf. A
-        wrong action shape raises ``ValueError`` (at trace time); a NaN/inf action is not
-        inspected here: it turns ``info["finite"]`` and ``state.finite`` false (use
-        :func:`dax_tasks.core.checks.check_action` at the boundary to refuse it).
+        wrong action shape, an action that is not real numbers (complex, text, bool) and
+        params whose goal or ``lam`` has the wrong shape raise ``ValueError`` (at trace
+        time, so under ``jit`` too). Values are not inspected here: a NaN/inf action or
+        parameter turns ``info["finite"]`` and ``state.finite`` false, and a finite
+        out-of-range parameter (a negative friction) runs as given under ``jit``; an
+        eager call (concrete params other than :attr:`default_params`) refuses params
+        :func:`dax_tasks.core.checks.check_params` refuses, in ``reset`` too. Use
+        :func:`dax_tasks.core.checks.check_action` at the boundary to refuse a NaN/inf
+        action.
         ``info``: ``r_gt``, ``r_aux``, ``distance`` [m], ``finite``, ``escaped`` (MPM
         particles left the grid), ``t``.
         """
-        params = self.default_params if params is None else params
+        params = self._checked_shapes(params)
         spec = self.spec
         # the physics' float type (float32; float64 for a state cast to it, so a float64
         # gradient check sees the action it asks for, not its float32 rounding)
         dtype = _float_dtype(state.physics)
-        action = jnp.asarray(action)
+        action = _real_array(action, f"{spec.name}: action")
         if action.shape != (spec.action_dim,):
             raise ValueError(f"{spec.name}: expected a {spec.action_kind} action of shape "
                              f"({spec.action_dim},), got {action.shape}")
@@ -372,6 +397,30 @@ class Env:
                 "escaped": escaped, "t": t}
         new_state = state.replace(physics=physics, t=t, finite=finite)
         return self.observe(physics), new_state, reward, done, info
+
+    def _checked_shapes(self, params: EnvParams | None) -> EnvParams:
+        """``params`` (default: :attr:`default_params`), its static shapes checked: the
+        goal's against the default goal's, ``lam`` and ``aux_weight`` scalars
+        (``ValueError`` at trace time). Params other than :attr:`default_params` given
+        as concrete values outside ``jit`` / ``scan`` (no leaf is a JAX tracer and
+        nothing is being traced) also get the boundary's value checks,
+        :func:`dax_tasks.core.checks.check_params` (a negative friction is refused);
+        traced params (under ``jit``, or batched by ``vmap``) are not inspected."""
+        if params is None or params is self._cache.get("params"):
+            return self.default_params
+        if self._goal is not None and jnp.shape(params.goal) != self._goal.shape:
+            raise ValueError(f"{self.name}: params.goal must have shape {self._goal.shape}, "
+                             f"got {jnp.shape(params.goal)}")
+        for name in ("lam", "aux_weight"):
+            if jnp.shape(getattr(params, name)) != ():
+                raise ValueError(f"{self.name}: params.{name} must be a scalar, got shape "
+                                 f"{jnp.shape(getattr(params, name))}")
+        if _eager() and not any(isinstance(leaf, jax.core.Tracer)
+                                for leaf in jax.tree_util.tree_leaves(params)):
+            from .checks import check_params as check_values
+
+            check_values(self, params)
+        return params
 
     def expert_action(self, state: EnvState, params: EnvParams | None = None):
         """The scripted expert's action for ``state``, inside the action bounds (pure;

@@ -31,6 +31,7 @@ import json
 import os
 import warnings
 import zipfile
+import zlib
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -117,6 +118,12 @@ def load_goal(path: str | os.PathLike, spec=None, n_points: int | None = None,
     return pts.astype(np.float32), prov
 
 
+#: What reading a damaged archive can raise (a flipped bit in a zip header can name an
+#: unsupported compression method: ``NotImplementedError``).
+_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError,
+                NotImplementedError, RuntimeError, zlib.error, OverflowError, MemoryError)
+
+
 def _read_goal_file(path: Path):
     """``(points, provenance text)`` as stored in goal file ``path`` (the text ``"{}"``
     when it has none); :class:`GoalFileError` if it is missing, unreadable, not an
@@ -125,7 +132,7 @@ def _read_goal_file(path: Path):
         raise GoalFileError(f"{path}: goal file not found")
     try:
         data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+    except _READ_ERRORS as err:
         raise GoalFileError(f"{path}: unreadable or truncated goal file ({err})") from None
     if not isinstance(data, np.lib.npyio.NpzFile):  # a bare .npy array
         raise GoalFileError(f"{path}: not a goal file: a single NumPy array, not an .npz "
@@ -136,11 +143,15 @@ def _read_goal_file(path: Path):
             if "points" not in data.files:
                 raise GoalFileError(f"{path}: not a goal file (no 'points' array; "
                                     f"has {sorted(data.files)})")
+            extra = sorted(set(data.files) - {"points", "provenance"})
+            if extra:  # a flipped bit in the archive's directory renames a member
+                raise GoalFileError(f"{path}: not a goal file, or a corrupted one: "
+                                    f"unexpected member(s) {extra}")
             pts = np.asarray(data["points"])
             text = data["provenance"] if "provenance" in data.files else np.asarray("{}")
     except GoalFileError:
         raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+    except _READ_ERRORS as err:
         raise GoalFileError(f"{path}: unreadable or truncated goal file ({err})") from None
     return pts, text
 

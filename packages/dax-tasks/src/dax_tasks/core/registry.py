@@ -23,7 +23,7 @@ import importlib
 import numpy as np
 
 from . import goals
-from .checks import check_params
+from .checks import check_params, check_spec
 from .env import Env, EnvParams
 from .spec import TaskSpec, checked_fields
 from .wrappers import ObservationMode
@@ -196,6 +196,7 @@ def make(name: str, obs_mode: str = "state", image_size: int = 64, goal_path=Non
     overrides = check_overrides(name, overrides)
     param_changes = {k: overrides.pop(k) for k in PARAM_OVERRIDES if k in overrides}
     spec = dataclasses.replace(base, **overrides)
+    check_spec(spec, image_size if obs_mode != "state" else None)  # sizes, before building
     env = cls(spec)
     points, provenance = goals.resolve_goal(env, goal_path, use_cache=cache_goal,
                                             allow_mismatch=allow_goal_mismatch)
