@@ -2,9 +2,10 @@
 
 `nox` runs the default sessions (lint, each package alone, the combinations, the
 cross-package tests, the multi-device and two-process tests); `nox -s demo` runs the main
-job, the benchmark runner on a small default; `nox -s physics-demo` the physics demo;
-`nox -s validate` the physics validation suite; `nox -s ray` the benchmark runner's Ray
-backend; `nox -l` lists them all.
+job, the benchmark runner on its demo preset; `nox -s report` writes its results page
+again and `nox -s bench -- ARGS` runs any `dax-bench` command; `nox -s physics-demo` the
+physics demo; `nox -s validate` the physics validation suite; `nox -s ray` the benchmark
+runner's Ray backend; `nox -l` lists them all.
 Arguments after `--` go to pytest, e.g. `nox -s physics -- -k free_fall -x`.
 
 Each package session installs only that package and the siblings it declares, so a
@@ -224,27 +225,43 @@ def lint(session: nox.Session) -> None:
     session.run("ruff", "check", ".", *session.posargs)
 
 
-#: The main job's small default: three cheap cloth tasks, every method, two seeds, the
-#: quick budgets: 66 runs, measured 24 minutes on 2 shared CPU cores with a warm XLA cache
-#: (the two Transporter variants take about 60 % of it). Arguments after `--` replace it,
-#: e.g. `nox -s demo -- --tasks all --methods all --seeds 5 --out results`.
-DEMO_ARGS = [
-    "--tasks", "fold_cloth1,fold_tshirt,unfold_cloth1",
-    "--methods", "all",
-    "--seeds", "2",
-    "--quick",
-    "--out", "bench_out",
-]
+#: The main job: `dax-bench run --preset demo` (dax_algos.bench.presets: Fold-Cloth-1; random,
+#: expert, CEM-MPC, diff-MPC and PPO; two seeds; quick budgets). Arguments after `--`
+#: replace it, e.g. `nox -s demo -- --preset cloth` (the grid of three cloth tasks, every
+#: method) or `nox -s demo -- --tasks all --methods all --seeds 5 --out results`.
+DEMO_ARGS = ["--preset", "demo"]
 
 
 @nox.session
 def demo(session: nox.Session) -> None:
-    """The main job: the benchmark runner (dax-bench) on a small default; writes
-    bench_out/results.csv, results.md, a chart per task and the results page
-    bench_out/index.html (tables, charts, learning curves, one episode animation per task
-    and method), and prints the page's path as its last line (open it in a browser)."""
+    """The main job: the benchmark runner (dax-bench) on its demo preset; writes
+    bench_out/results.csv, results.md, a chart per task, the learning curves and the
+    results page bench_out/index.html (tables, charts, one episode animation per task and
+    method), prints the page's path as its last line (open it in a browser), and fails
+    (non-zero exit, one line saying which runs failed and why) if any run failed. A status
+    line ticks every second with the run under way and an estimate of the time left."""
     _install_local(session, LAYERS)
     session.run("dax-bench", "run", *(session.posargs or DEMO_ARGS), env=PYTEST_ENV)
+
+
+@nox.session
+def report(session: nox.Session) -> None:
+    """`dax-bench report` in an environment of its own: writes the results page, tables
+    and charts of an output directory again (default `--out bench_out`, the demo's);
+    arguments after `--` replace that, e.g. `nox -s report -- --out results
+    --include-stale`."""
+    _install_local(session, LAYERS)
+    session.run("dax-bench", "report", *(session.posargs or ["--out", "bench_out"]),
+                env=PYTEST_ENV)
+
+
+@nox.session
+def bench(session: nox.Session) -> None:
+    """Any `dax-bench` command, its arguments after `--` (default `list`), e.g. `nox -s
+    bench -- run --preset paper --max-minutes 60` (the paper grid in a chunk of an hour;
+    the same command continues it)."""
+    _install_local(session, LAYERS)
+    session.run("dax-bench", *(session.posargs or ["list"]), env=PYTEST_ENV)
 
 
 @nox.session

@@ -59,17 +59,17 @@ def test_unwritable_directory_is_refused_before_the_first_episode(tmp_path, caps
     one_line_error(capsys, out, f"{out}: cannot write in the output directory")
 
 
-@pytest.mark.parametrize("content, problem", [
-    (b"\xff\xfe\x00garbage\n", "not UTF-8 text"),
-    (b"a,b,c\n1,2,3\n", "columns ['a', 'b', 'c']"),
+@pytest.mark.parametrize("content, where, problem", [
+    (b"\xff\xfe\x00garbage\n", ": not a dax-bench results file", "not UTF-8 text"),
+    (b"a,b,c\n1,2,3\n", ": not a dax-bench results file", "columns ['a', 'b', 'c']"),
     (",".join(COLUMNS).encode() + b"\n" + b"fold_cloth1,random,x,quick,ok"
-     + b"," * (len(COLUMNS) - 5) + b"\n", "seed 'x' is not an integer"),
+     + b"," * (len(COLUMNS) - 5) + b"\n", ", line 2:", "seed 'x' is not an integer"),
 ])
 def test_garbled_results_file_is_refused_naming_it_and_left_alone(tmp_path, capsys, no_work,
-                                                                   content, problem):
+                                                                   content, where, problem):
     path = tmp_path / "results.csv"
     path.write_bytes(content + b"half a line")
-    one_line_error(capsys, tmp_path, f"{path}: not a dax-bench results file", problem)
+    one_line_error(capsys, tmp_path, f"{path}{where}", problem)
     assert path.read_bytes() == content + b"half a line", "the refused file was changed"
 
 
@@ -77,6 +77,20 @@ def test_a_second_runner_on_the_same_results_is_refused(tmp_path, capsys, no_wor
     with io.exclusive(tmp_path / "results.csv", program="dax-bench run (first)"):
         one_line_error(capsys, tmp_path, str(tmp_path / "results.csv"),
                        "another process is writing it", "dax-bench run (first)")
+
+
+def test_a_waiting_runner_says_who_holds_the_lock_and_gives_up(tmp_path, capsys, no_work):
+    """``--lock-timeout S``: one line saying who holds the results, then after S seconds
+    the one-line error."""
+    csv = tmp_path / "results.csv"
+    with io.exclusive(csv, program="dax-bench run (first)"):
+        code = runner.main(["run", "--tasks", TASK, "--methods", "random", "--out",
+                            str(tmp_path), "--no-progress", "--lock-timeout", "0.3"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 2, err
+    assert err[0].startswith(f"{csv}: waiting for another process") and \
+        "dax-bench run (first)" in err[0] and "up to 0.3 s" in err[0], err
+    assert err[1].startswith("dax-bench: error: ") and "waited 0.3 s" in err[1], err
 
 
 def test_other_overrides_on_the_same_out_are_refused_not_answered_with_old_rows(tmp_path):

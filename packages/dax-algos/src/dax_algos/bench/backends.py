@@ -18,6 +18,7 @@ driver's process (``registry.register``) is unknown there and its rows fail.
 
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 from collections.abc import Callable, Mapping
@@ -29,6 +30,9 @@ from .execute import error_text, failed, run_one
 WORKER_ENV = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
 
 INSTALL_HINT = "pip install 'dax-algos[ray]'"
+#: the most runs submitted to the cluster and not yet finished at a time (the grid's runs
+#: are enumerated as they are submitted, never listed whole)
+IN_FLIGHT = 256
 
 
 def require_ray():
@@ -48,16 +52,22 @@ def worker_env() -> dict:
 
 def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mapping,
             cache_goal: bool, demo_dir, finished: Callable, address: str | None = None,
-            num_cpus: float = 1) -> None:
-    """Run ``todo`` (``(task, method, seed)`` triples) as Ray tasks and call
+            num_cpus: float = 1, stop: Callable[[], bool] | None = None,
+            window: int = IN_FLIGHT) -> None:
+    """Run ``todo`` (an iterable of ``(task, method, seed)`` triples, consumed lazily) as
+    Ray tasks, at most ``window`` submitted and unfinished at a time, and call
     ``finished(result)`` in this process for each as it finishes. Uses Ray as it is if it is
     initialised already, else ``ray.init(address=address)`` (``None``: ``RAY_ADDRESS`` or
     a new local instance), shut down again at the end. A run whose worker raised is a
     ``failed`` row; one lost to the cluster (a worker or node died) is not recorded, so
-    that running the same command again retries it. Interrupted, it cancels the tasks
-    still pending."""
-    if not todo:
+    that running the same command again retries it. Once ``stop()`` is true no more runs
+    are submitted (those under way finish). Interrupted, it cancels the tasks still
+    pending."""
+    todo = iter(todo)
+    first = next(todo, None)
+    if first is None:
         return
+    todo = itertools.chain([first], todo)
     ray = require_ray()
     started = not ray.is_initialized()
     if started:
@@ -65,28 +75,30 @@ def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mappin
     env_vars = worker_env()
     remote = ray.remote(run_one).options(
         num_cpus=num_cpus, **({"runtime_env": {"env_vars": env_vars}} if env_vars else {}))
-    pending = {}
-    try:
-        for t, m, s in todo:
+    stop = stop or (lambda: False)
+    pending: dict = {}
+    lost: list = []
+
+    def submit():
+        while len(pending) < window and not stop():
+            nxt = next(todo, None)
+            if nxt is None:
+                return
+            t, m, s = nxt
             ref = remote.remote(t, m, s, budget, dict(task_overrides.get(t, {})),
                                 dict(method_overrides.get(m, {})), cache_goal,
                                 None if demo_dir is None else str(demo_dir))
             pending[ref] = (t, m, s)
-        lost = []
+
+    try:
+        submit()
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
-                t, m, s = pending.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except ray.exceptions.RayTaskError as err:  # raised in run_one itself
-                    result = failed(t, m, s, budget, getattr(err, "cause", None) or err)
-                except ray.exceptions.RayError as err:  # the cluster lost it: not recorded
-                    lost.append((t, m, s))
-                    print(f"dax-bench: {t} / {m} / seed {s} was lost "
-                          f"({error_text(err)}); run again to retry it", file=sys.stderr)
-                    continue
-                finished(result)
+                result = _collect(ray, ref, pending.pop(ref), budget, lost)
+                if result is not None:
+                    finished(result)
+            submit()
         if lost:
             print(f"dax-bench: {len(lost)} runs lost by the Ray cluster are not in "
                   f"results.csv; the same command runs them again", file=sys.stderr)
@@ -95,3 +107,18 @@ def run_ray(todo, budget: str, task_overrides: Mapping, method_overrides: Mappin
             ray.cancel(ref, force=True)
         if started:
             ray.shutdown()
+
+
+def _collect(ray, ref, run, budget, lost):
+    """The result of a finished Ray task: its :class:`SeedResult`, a failed one if it
+    raised, ``None`` (and the run added to ``lost``) if the cluster lost it."""
+    t, m, s = run
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as err:  # raised in run_one itself
+        return failed(t, m, s, budget, getattr(err, "cause", None) or err)
+    except ray.exceptions.RayError as err:  # the cluster lost it: not recorded
+        lost.append(run)
+        print(f"dax-bench: {t} / {m} / seed {s} was lost ({error_text(err)}); run again to "
+              f"retry it", file=sys.stderr)
+        return None

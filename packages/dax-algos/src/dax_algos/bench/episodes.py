@@ -41,6 +41,8 @@ import numpy as np
 
 from dax_tasks.io import atomic_write
 
+from .rows import check_name
+
 DIR = "episodes"
 #: replayed and recorded final-step r_gt further apart than this are flagged
 MISMATCH = 0.01
@@ -58,8 +60,10 @@ STYLE = "scene-v1"
 # ----------------------------------------------------------------------------- recording
 
 def episode_path(out, task: str, method: str, seed: int) -> Path:
-    """``out/episodes/<task>/<method>/seed<k>.npz``."""
-    return Path(out) / DIR / task / method / f"seed{int(seed)}.npz"
+    """``out/episodes/<task>/<method>/seed<k>.npz`` (``ValueError`` for a task or method
+    name that is not a file name, :func:`dax_algos.bench.rows.check_name`)."""
+    return (Path(out) / DIR / check_name("task", task) / check_name("method", method)
+            / f"seed{int(seed)}.npz")
 
 
 class Episode(NamedTuple):
@@ -308,6 +312,7 @@ def episode_pictures(out, rows: list[Mapping], make_env: Callable[[str], object]
         for m in methods:
             if (t, m) not in by_pair:
                 continue
+            check_name("task", t), check_name("method", m)  # they become paths below
             pic = _picture(out, t, m, by_pair[(t, m)], make_env, envs, replays)
             pictures.append(pic)
             if prune:

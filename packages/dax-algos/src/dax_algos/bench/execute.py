@@ -27,7 +27,7 @@ import dax_tasks
 from .. import registry
 from ..il import demos
 from ..method import LearnerRunnable, NotApplicable, Runnable
-from . import episodes, trained
+from . import episodes, provenance, trained
 from .rows import make_row
 
 
@@ -54,9 +54,12 @@ def error_text(err: BaseException) -> str:
 
 def failed(task, method, seed, budget, err: BaseException, prefix: str = "",
            **values) -> SeedResult:
-    """The :class:`SeedResult` of a seed that raised ``err`` (``status=failed``)."""
+    """The :class:`SeedResult` of a seed that raised ``err`` (``status=failed``; the
+    provenance that ``values`` does not give is what this process knows without the task
+    and the config, :func:`dax_algos.bench.provenance.of_run`)."""
     return SeedResult(make_row(task, method, seed, budget, status="failed",
-                               error=prefix + error_text(err), **values))
+                               error=prefix + error_text(err),
+                               **{**provenance.of_run(), **values}))
 
 
 def row_values(out, run: Runnable) -> dict:
@@ -115,17 +118,26 @@ def run_one(task: str, method: str, seed: int, budget: str, task_overrides: Mapp
     return result
 
 
-def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_overrides=None):
-    """The :class:`SeedResult` of each of ``seeds`` (a generator): the method's episode is
-    built and compiled once, then called per seed with ``PRNGKey(seed)``. Every seed is
-    computed the same way whichever seeds run with it (and under either backend), so its
-    values do not depend on the grid: a learner's seeds are not batched under ``vmap``."""
+def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_overrides=None,
+               phase=None):
+    """The :class:`SeedResult` of each of ``seeds`` (a generator; ``seeds`` is iterated
+    once, lazily): the method's episode is built and compiled once, then called per seed
+    with ``PRNGKey(seed)``. Every seed is computed the same way whichever seeds run with
+    it (and under either backend), so its values do not depend on the grid: a learner's
+    seeds are not batched under ``vmap``. ``phase(text)``, if given, is told what is
+    under way (``"compiling"``, ``"seed 3"``) for a progress display."""
+    phase = phase or (lambda text: None)
     params = env.default_params
+    prov = provenance.of_run(env)
     try:  # (a method registered in the driver only is unknown to a Ray worker: a failed row)
         method = registry.get(m)
         config = method.config(budget, t, **overrides)
+        prov = provenance.of_run(env, config)
         run = method.build(env, config)
+        if isinstance(run, LearnerRunnable) and run.demos is not None:
+            phase("demonstrations")
         data = _demonstrations(env, run, demo_dir, task_overrides)
+        phase("compiling")
         t0 = time.perf_counter()
         compiled = jax.jit(run.episode).lower(jax.random.PRNGKey(0), params,
                                               *data).compile()
@@ -133,9 +145,11 @@ def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_override
     except Exception as err:  # noqa: BLE001
         status = "skipped" if isinstance(err, NotApplicable) else "failed"
         for s in seeds:
-            yield SeedResult(make_row(t, m, s, budget, status=status, error=error_text(err)))
+            yield SeedResult(make_row(t, m, s, budget, status=status, error=error_text(err),
+                                      **prov))
         return
     for s in seeds:
+        phase(f"seed {s}")
         try:
             t0 = time.perf_counter()
             out = jax.device_get(jax.block_until_ready(
@@ -143,8 +157,9 @@ def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_override
             wall = time.perf_counter() - t0
             make = learner_result if isinstance(run, LearnerRunnable) else planner_result
             result = make(env, t, m, s, budget, config, run, out, wall, compile_s)
+            result.row.update(prov)
         except Exception as err:  # noqa: BLE001
-            result = failed(t, m, s, budget, err, compile_s=compile_s)
+            result = failed(t, m, s, budget, err, compile_s=compile_s, **prov)
         yield result
 
 

@@ -8,7 +8,8 @@ as ``compile_s``; the env's default params are an argument, not constants), then
 (the initial state comes from ``fold_in(key, 0)``, the same for every method). The
 **episode score is the final-step ``r_gt``**. Every finished run is appended to
 ``results.csv`` at once (:func:`record`: one flushed, fsynced write per row); started again,
-the grid skips the (task, method, seed, budget) rows already there. Beside each row it
+the grid skips the (task, method, seed, budget) rows already there but the failed ones,
+which it runs again (:class:`Plan`). Beside each row it
 records the episode (start key and actions, ``episodes/<task>/<method>/seed<k>.npz``,
 :mod:`dax_algos.bench.episodes`). At the end it rewrites the reports
 (:func:`dax_algos.bench.summary.write_reports`). ``backend="ray"`` runs every (task,
@@ -18,25 +19,31 @@ writes every file.
 
 from __future__ import annotations
 
+import itertools
+import json
 import os
 import shlex
-import sys
+import time
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import jax
-from tqdm.auto import tqdm
 
 import dax_tasks
 from dax_tasks.io import exclusive
 
 from .. import registry
-from . import backends, episodes, execute, learning, policy_io, rundir, summary
+from . import backends, episodes, execute, learning, policy_io, provenance, rundir, summary
 from .execute import SeedResult
-from .rows import append_row, read_rows
+from .progress import Clock
+from .provenance import COLUMNS as PROVENANCE
+from .rows import append_row, check_name, errors_of, key, latest, read_rows, upgrade
 
 #: where the runs of a grid run (``--backend``)
 BACKENDS = ("local", "ray")
+#: the most seeds a grid can have: seeds 0 .. 2**32 - 1 are PRNGKey's distinct seeds
+MAX_SEEDS = 2**32
 
 
 def resolve_tasks(spec: str | Iterable[str]) -> list[str]:
@@ -45,8 +52,9 @@ def resolve_tasks(spec: str | Iterable[str]) -> list[str]:
     declared, available = dax_tasks.TASKS, dax_tasks.available()
     names = _split(spec)
     if names == ["all"]:
-        return list(available)
+        return [check_name("task", n) for n in available]
     for n in names:
+        check_name("task", n)
         if n not in declared:
             raise ValueError(f"unknown task {n!r}; valid: {', '.join(declared)} or all")
         if n not in available:
@@ -59,8 +67,9 @@ def resolve_methods(spec: str | Iterable[str]) -> list[str]:
     """Method names from ``"all"``, ``"a,b"`` or a list; ValueError for an unknown one."""
     names = _split(spec)
     if names == ["all"]:
-        return list(registry.names())
+        return [check_name("method", n) for n in registry.names()]
     for n in names:
+        check_name("method", n)
         registry.get(n)
     return list(dict.fromkeys(names))
 
@@ -83,13 +92,41 @@ def cli_command(tasks, methods, seeds, out, quick, backend="local", ray_address=
     return shlex.join(parts)
 
 
+class GridRows(list):
+    """The rows :func:`run_grid` returns (the row that counts for each run, :func:`dax_algos.
+    bench.rows.latest`), with what it left undone: ``left`` runs (``left_by_task``:
+    ``{task: runs}``) because ``max_minutes`` ran out."""
+
+    left: int = 0
+    left_by_task: dict
+
+    def left_text(self) -> str:
+        """One line saying what is left (``""`` if nothing)."""
+        if not self.left:
+            return ""
+        per = ", ".join(f"{t} {n}" for t, n in self.left_by_task.items() if n)
+        return f"{self.left} runs left ({per}); run the same command again to continue"
+
+
+def check_seeds(seeds) -> int:
+    """``seeds`` if it is an int in ``1 .. MAX_SEEDS`` (seeds ``0 .. seeds - 1`` are
+    ``PRNGKey``'s 32-bit seeds); ``ValueError`` otherwise."""
+    if not (isinstance(seeds, int) and not isinstance(seeds, bool) and 0 < seeds <= MAX_SEEDS):
+        raise ValueError(f"seeds must be an int in 1 .. {MAX_SEEDS} (seeds 0 .. K-1 are "
+                         f"PRNGKey's 32-bit seeds), got {seeds!r}")
+    return seeds
+
+
 def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
              progress: bool = True, demo_dir: str | os.PathLike | None = None,
              command: str | None = None, backend: str = "local",
-             ray_address: str | None = None, ray_cpus: float = 1) -> list[dict]:
-    """Run every combination not yet in ``out/results.csv``; returns all rows of the file.
+             ray_address: str | None = None, ray_cpus: float = 1, retry_failed: bool = True,
+             max_minutes: float | None = None, include_stale: bool = False,
+             lock_wait: float = 0.0) -> GridRows:
+    """Run every combination not yet in ``out/results.csv``; returns the row that counts
+    for each run in the file (:class:`GridRows`).
 
     task_overrides: ``{task: {TaskSpec field or lam/aux_weight: value}}`` passed to
     ``dax_tasks.make`` (e.g. a coarser scene for tests). method_overrides: ``{method:
@@ -97,7 +134,16 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     ``dax_tasks.make``. demo_dir: where the imitation methods' demonstration sets are made
     or reused (default ``$DAX_CACHE_DIR/demos``, :func:`dax_data.standard.cache_dir`).
     command: the command line recorded in ``run.json`` (default: the equivalent
-    ``dax-bench run`` command, :func:`cli_command`).
+    ``dax-bench run`` command, :func:`cli_command`). seeds: ``K`` runs seeds ``0 .. K-1``
+    (at most :data:`MAX_SEEDS`; the runs are enumerated as they are needed, never listed
+    whole).
+
+    retry_failed: a run whose row in ``out`` is ``failed`` is run again (its new row lists
+    the earlier errors in ``previous_errors``; the failed row stays in the file and no
+    longer counts); ``False`` leaves failed runs as they are. max_minutes: start no run
+    after this many minutes (a run under way finishes; the reports are written; the
+    rows returned say what is left); ``None``: no limit. include_stale: the reports count
+    stale rows (:func:`dax_algos.bench.summary.write_reports`).
 
     backend: ``"local"`` (this process) or ``"ray"``: every (task, method, seed) is one Ray
     task (:func:`dax_algos.bench.backends.run_ray`) on the cluster at ``ray_address`` (default:
@@ -107,16 +153,19 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     backend (their order is the order runs finish in).
 
     Before any work: ``out`` must be (or become) a writable directory whose
-    ``results.csv`` is a results file (:func:`dax_algos.bench.rundir.check_out`,
-    :func:`dax_algos.bench.rows.read_rows`), no other run may be writing it (its lock,
-    ``.results.csv.lock``, :func:`dax_tasks.io.exclusive`: ``FileLockedError`` naming the
-    holder), and results already there must have been made with the same task and method
-    overrides (recorded in ``run.json``); each problem is one error naming the path."""
+    ``results.csv`` is a results file with valid rows (:func:`dax_algos.bench.rundir.
+    check_out`, :func:`dax_algos.bench.rows.read_rows`), no other run may be writing it
+    (its lock, ``.results.csv.lock``, :func:`dax_tasks.io.exclusive`: ``FileLockedError``
+    naming the holder, at once or after waiting ``lock_wait`` seconds), results already
+    there must have been made with the same task and method overrides (recorded in
+    ``run.json``) and in the precision JAX computes in now (float32, or float64 under
+    ``JAX_ENABLE_X64``); each problem is one error naming the path."""
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
     _check_backend(backend, ray_address, ray_cpus)
-    if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds > 0):
-        raise ValueError(f"seeds must be a positive int, got {seeds!r}")
+    check_seeds(seeds)
+    if max_minutes is not None and not max_minutes > 0:
+        raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
     budget = "quick" if quick else "full"
     task_overrides = dict(task_overrides or {})
     method_overrides = dict(method_overrides or {})
@@ -124,17 +173,18 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     csv_path = rundir.check_out(out)
     config = {"task_overrides": rundir.canonical(task_overrides),
               "method_overrides": rundir.canonical(method_overrides)}
-    with exclusive(csv_path):
+    with exclusive(csv_path, wait=lock_wait):
         rows = read_rows(csv_path)
+        _check_precision(csv_path, rows)
         rundir.record_run(out, rows, config, command or cli_command(
             task_names, method_names, seeds, out, quick, backend, ray_address))
-        done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows}
-        todo = [(t, m, s) for t in task_names for m in method_names for s in range(seeds)
-                if (t, m, s, budget) not in done]
-        envs = _run_todo(todo, task_names, method_names, out, budget, task_overrides,
-                         method_overrides, cache_goal, progress, demo_dir, backend,
-                         dict(address=ray_address, num_cpus=ray_cpus))
-        rows = read_rows(csv_path)
+        upgrade(csv_path, rows)
+        plan = Plan(task_names, method_names, seeds, budget, latest(rows), retry_failed,
+                    None if max_minutes is None else time.monotonic() + 60 * max_minutes)
+        envs = _run_todo(plan, out, task_overrides, method_overrides, cache_goal, progress,
+                         demo_dir, backend, dict(address=ray_address, num_cpus=ray_cpus))
+        result = GridRows(latest(read_rows(csv_path)))
+        result.left, result.left_by_task = plan.left()
 
         def make_env(task):  # the task as this run built it
             if task not in envs:
@@ -142,8 +192,81 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
                                             **task_overrides.get(task, {}))
             return envs[task]
 
-        summary.write_reports(rows, out, budget, make_env)
-        return rows
+        today = provenance.Today(task_overrides, method_overrides)
+        summary.write_reports(result, out, budget, make_env, include_stale, today)
+        return result
+
+
+def rows_of(rows, tasks, methods, seeds: int, budget: str) -> list:
+    """The rows of ``rows`` that belong to the grid ``tasks`` x ``methods`` x seeds
+    ``0 .. seeds - 1`` of ``budget`` (names as :func:`run_grid` takes them)."""
+    tasks, methods = set(resolve_tasks(tasks)), set(resolve_methods(methods))
+    return [r for r in rows if r["task"] in tasks and r["method"] in methods
+            and int(r["seed"]) < seeds and r["budget"] == budget]
+
+
+def _check_precision(path: Path, rows) -> None:
+    """Refuse to add rows computed in another precision than the rows in ``path``."""
+    now = provenance.precision()
+    other = sorted({r["precision"] for r in rows if r["precision"]} - {now})
+    if other:
+        raise ValueError(f"{path}: holds {'/'.join(other)} results and this run computes in "
+                         f"{now} (JAX_ENABLE_X64 is {'set' if now == 'float64' else 'unset'}); "
+                         f"one grid, one precision: use another --out directory")
+
+
+class Plan:
+    """The runs of a grid still to do, enumerated lazily (``(task, method, seed)`` in task,
+    method, seed order), with the failed runs' error history and the time limit."""
+
+    def __init__(self, tasks, methods, seeds, budget, rows, retry_failed, deadline):
+        self.tasks, self.methods, self.seeds, self.budget = tasks, methods, seeds, budget
+        self.deadline = deadline
+        self.history = {key(r): errors_of(r) for r in rows
+                        if r["status"] == "failed" and retry_failed}
+        self.done = {key(r) for r in rows} - set(self.history)
+        self.finished: Counter = Counter()
+        in_grid = Counter(t for t, m, s, b in self.done
+                          if t in tasks and m in methods and s < seeds and b == budget)
+        self.todo_by_task = {t: len(methods) * seeds - in_grid[t] for t in tasks}
+        self.total = sum(self.todo_by_task.values())
+
+    def time_is_up(self) -> bool:
+        """The time limit has passed (no new run may start)."""
+        return self.deadline is not None and time.monotonic() > self.deadline
+
+    def seeds_of(self, task, method):
+        """The seeds of (task, method) still to run, lazily; none once the time is up."""
+        for s in range(self.seeds):
+            if self.time_is_up():
+                return
+            if (task, method, s, self.budget) not in self.done:
+                yield s
+
+    def groups(self) -> int:
+        """The (task, method) pairs with runs still to do."""
+        return sum(next(self.seeds_of(t, m), None) is not None
+                   for t in self.tasks for m in self.methods)
+
+    def __iter__(self):
+        for t in self.tasks:
+            for m in self.methods:
+                for s in self.seeds_of(t, m):
+                    yield t, m, s
+
+    def record(self, result) -> None:
+        """Count ``result`` as finished; give its row the run's earlier errors."""
+        row = result.row
+        errors = self.history.get((row["task"], row["method"], int(row["seed"]),
+                                   row["budget"]))
+        if errors:
+            row["previous_errors"] = json.dumps(errors)
+        self.finished[row["task"]] += 1
+
+    def left(self) -> tuple[int, dict]:
+        """``(runs left, {task: runs left})``."""
+        by_task = {t: n - self.finished[t] for t, n in self.todo_by_task.items()}
+        return sum(by_task.values()), by_task
 
 
 def _check_backend(backend, ray_address, ray_cpus) -> None:
@@ -157,55 +280,59 @@ def _check_backend(backend, ray_address, ray_cpus) -> None:
         raise ValueError("--ray-address is for --backend ray (the backend is local)")
 
 
-def _run_todo(todo, task_names, method_names, out, budget, task_overrides,
-              method_overrides, cache_goal, progress, demo_dir, backend,
-              ray_options) -> dict:
-    """Run ``todo`` (``(task, method, seed)`` triples) with ``backend``, recording each
-    result in ``out`` as it finishes (a progress bar counts them); returns the tasks the
-    local backend built (``{task: env}``)."""
-    bar = tqdm(total=len(todo), desc="dax-bench", unit="run", disable=not progress,
-               file=sys.stderr)
+def _run_todo(plan: Plan, out, task_overrides, method_overrides, cache_goal, progress,
+              demo_dir, backend, ray_options) -> dict:
+    """Run the runs of ``plan`` with ``backend``, recording each result in ``out`` as it
+    finishes (a status line ticks every second, :class:`dax_algos.bench.progress.Clock`);
+    returns the tasks the local backend built (``{task: env}``)."""
+    clock = Clock(plan.total, plan.groups() if backend == "local" else 0, enabled=progress)
 
     def finished(result):  # the driver alone writes the output directory
+        plan.record(result)
         record(out, result)
-        bar.update()
+        clock.finished(result.row)
 
     envs: dict = {}
     try:
         if backend == "ray":
-            backends.run_ray(todo, budget, task_overrides, method_overrides, cache_goal,
-                             demo_dir, finished, **ray_options)
+            backends.run_ray(iter(plan), plan.budget, task_overrides, method_overrides,
+                             cache_goal, demo_dir, finished, stop=plan.time_is_up,
+                             **ray_options)
         else:
-            _run_local(todo, task_names, method_names, budget, task_overrides,
-                       method_overrides, cache_goal, demo_dir, envs, finished, bar)
+            _run_local(plan, task_overrides, method_overrides, cache_goal, demo_dir, envs,
+                       finished, clock)
     finally:
-        bar.close()
+        clock.close()
     return envs
 
 
-def _run_local(todo, task_names, method_names, budget, task_overrides, method_overrides,
-               cache_goal, demo_dir, envs, finished, bar) -> None:
-    """The runs of ``todo`` in this process, task by task (each built once, kept in
+def _run_local(plan: Plan, task_overrides, method_overrides, cache_goal, demo_dir, envs,
+               finished, clock) -> None:
+    """The runs of ``plan`` in this process, task by task (each built once, kept in
     ``envs``) and method by method (each compiled once for all its seeds)."""
-    for t in task_names:
-        t_todo = [(m, s) for tt, m, s in todo if tt == t]
-        if not t_todo:
+    budget = plan.budget
+    for t in plan.tasks:
+        if all(next(plan.seeds_of(t, m), None) is None for m in plan.methods):
             continue
+        clock.building(t)
         try:
             env = envs[t] = dax_tasks.make(t, cache_goal=cache_goal,
                                            **task_overrides.get(t, {}))
         except Exception as err:  # noqa: BLE001 - recorded, the grid continues
-            for m, s in t_todo:
-                finished(execute.failed(t, m, s, budget, err, prefix="building the task: "))
+            for m in plan.methods:
+                for s in plan.seeds_of(t, m):
+                    finished(execute.failed(t, m, s, budget, err,
+                                            prefix="building the task: "))
             continue
-        for m in method_names:
-            m_seeds = [s for mm, s in t_todo if mm == m]
-            if not m_seeds:
+        for m in plan.methods:
+            seeds = plan.seeds_of(t, m)
+            first = next(seeds, None)
+            if first is None:
                 continue
-            bar.set_postfix_str(f"{t} / {m}")
-            for result in execute.run_method(env, t, m, m_seeds, budget,
-                                             method_overrides.get(m, {}), demo_dir,
-                                             task_overrides.get(t)):
+            clock.start(t, m)
+            for result in execute.run_method(env, t, m, itertools.chain([first], seeds),
+                                             budget, method_overrides.get(m, {}), demo_dir,
+                                             task_overrides.get(t), phase=clock.phase):
                 finished(result)
         jax.clear_caches()
 
@@ -223,8 +350,10 @@ def record(out: Path, result: SeedResult) -> None:
         if result.episode is not None:
             episodes.save_episode(episodes.episode_path(out, t, m, s), **result.episode)
         if result.policy is not None:
-            policy_io.save_policy(out / "policies" / t / m / f"seed{s}.msgpack",
+            policy_io.save_policy(out / "policies" / check_name("task", t)
+                                  / check_name("method", m) / f"seed{s}.msgpack",
                                   *result.policy)
     except Exception as err:  # noqa: BLE001
-        row = execute.failed(t, m, s, budget, err, compile_s=row.get("compile_s", "")).row
+        keep = {k: row.get(k, "") for k in ("compile_s", "previous_errors", *PROVENANCE)}
+        row = execute.failed(t, m, s, budget, err, **keep).row
     append_row(out / "results.csv", row)

@@ -8,7 +8,9 @@ run's row in results.csv. Reading drops an incomplete last line (a killed writer
 keeps the last copy of a repeated (task, method, seed, budget, update) (a run re-done
 after an interruption) and, given ``keep``, only runs that results.csv has.
 ``learning_<task>.png``: score against environment steps and against wall time, each
-method's mean ± SE band over seeds.
+method's mean ± SE band over seeds and every update's point (each method in its colour,
+:func:`dax_algos.bench.report.colour`), and the reference rows' mean scores (random,
+expert) as dashed lines, so that a curve's rise is seen against them.
 """
 
 from __future__ import annotations
@@ -23,13 +25,16 @@ import numpy as np
 from dax_tasks.io import atomic_write
 
 from . import csvlog
+from .report import colour
+from .rows import check_name
 
 COLUMNS = ("task", "method", "seed", "budget", "update", "env_steps", "wall_s", "score")
 
 
 def learning_path(out_dir, task) -> Path:
-    """``out_dir/learning_<task>.csv``."""
-    return Path(out_dir) / f"learning_{task}.csv"
+    """``out_dir/learning_<task>.csv`` (``ValueError`` for a task name that is not a file
+    name, :func:`dax_algos.bench.rows.check_name`)."""
+    return Path(out_dir) / f"learning_{check_name('task', task)}.csv"
 
 
 def _fmt(v):
@@ -96,17 +101,27 @@ def curve_bands(rows, x: str, points: int = 50) -> dict:
         for i, (cx, cy) in enumerate(curves):
             inside = (grid >= cx[0]) & (grid <= cx[-1])
             ys[i, inside] = np.interp(grid[inside], cx, cy)
-        n = np.sum(np.isfinite(ys), 0)
-        mean = np.nanmean(ys, 0)
-        sd = np.where(n > 1, np.nanstd(ys, 0, ddof=1) if len(curves) > 1 else 0.0, 0.0)
-        se = np.where(n > 1, sd / np.sqrt(np.maximum(n, 1)), 0.0)
-        out[method] = (grid, mean, se, len(curves))
+        out[method] = (grid, *_mean_se(ys), len(curves))
     return out
 
 
-def charts(rows, out_dir, method_order=()) -> list[Path]:
+def _mean_se(ys):
+    """Mean and standard error over axis 0 of the finite entries (NaN where none; SE 0
+    where one), without NumPy's warnings about empty slices."""
+    ok = np.isfinite(ys)
+    n = ok.sum(0)
+    total = np.where(ok, ys, 0.0).sum(0)
+    mean = np.divide(total, n, out=np.full(n.shape, np.nan), where=n > 0)
+    dev = np.where(ok, ys - mean, 0.0)
+    var = np.divide((dev ** 2).sum(0), n - 1, out=np.zeros(n.shape), where=n > 1)
+    se = np.divide(np.sqrt(var), np.sqrt(n), out=np.zeros(n.shape), where=n > 1)
+    return mean, se
+
+
+def charts(rows, out_dir, method_order=(), references=None) -> list[Path]:
     """Write ``learning_<task>.png`` for each task in ``rows`` (see the module docstring;
-    methods in ``method_order`` first); returns the paths."""
+    methods in ``method_order`` first; ``references``: ``{task: {method: mean score}}``
+    drawn as dashed lines); returns the paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -124,20 +139,32 @@ def charts(rows, out_dir, method_order=()) -> list[Path]:
                                 ("training environment steps", "training wall time [s]"),
                                 strict=True):
             bands = curve_bands(trows, x)
-            for i, m in enumerate(methods):
+            for m in methods:
                 if m not in bands:
                     continue
                 grid, mean, se, n = bands[m]
                 n_seeds = max(n_seeds, n)
-                ax.plot(grid, mean, color=f"C{i % 10}", label=m)
-                ax.fill_between(grid, mean - se, mean + se, color=f"C{i % 10}", alpha=0.25)
+                c = colour(m)
+                pts = [r for r in trows if r["method"] == m and math.isfinite(r["score"])]
+                ax.scatter([r[x] for r in pts], [r["score"] for r in pts], color=c, s=8,
+                           alpha=0.35)  # every update's point, so one point still shows
+                ax.plot(grid, mean, color=c, label=m)
+                ax.fill_between(grid, mean - se, mean + se, color=c, alpha=0.25)
+            for name, score in (references or {}).get(task, {}).items():
+                ax.axhline(score, color=colour(name), ls="--", lw=1,
+                           label=f"{name} (mean score)" if ax is axes[0] else None)
             ax.set_xlabel(label)
             ax.grid(True, alpha=0.3)
         axes[0].set_ylabel("final-step r_gt (training episodes)")
-        axes[0].legend(fontsize=8)
-        fig.suptitle(f"{task}: learning curves (mean ± SE over {n_seeds} seeds)")
+        if any(ax.get_legend_handles_labels()[0] for ax in axes):
+            axes[0].legend(fontsize=8)
+        else:
+            axes[0].text(0.5, 0.5, "no training episode ended in any update", ha="center",
+                         transform=axes[0].transAxes)
+        fig.suptitle(f"{task}: learning curves (mean ± SE over {n_seeds} seeds; the first "
+                     f"point is the untrained policy's)")
         fig.tight_layout()
-        path = Path(out_dir) / f"learning_{task}.png"
+        path = Path(out_dir) / f"learning_{check_name('task', task)}.png"
         atomic_write(path, lambda f, fig=fig: fig.savefig(f, format="png", dpi=100))
         plt.close(fig)
         written.append(path)

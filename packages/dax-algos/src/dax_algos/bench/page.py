@@ -27,6 +27,7 @@ import numpy as np
 from dax_tasks.io import atomic_write
 
 from . import report
+from .rows import key
 
 PAGE = "index.html"
 
@@ -111,8 +112,10 @@ def best_methods(rows, task: str) -> set:
     return {m for m, v in means.items() if v == top}
 
 
-def score_table(rows, tasks, methods) -> list[str]:
-    """One row per task, one column per method; the best mean of each task marked."""
+def score_table(rows, tasks, methods, stale=None) -> list[str]:
+    """One row per task, one column per method; the best mean of each task marked; a cell
+    holding stale rows (``stale``: ``{row key: reason}``) marked †."""
+    stale = stale or {}
     groups = report.group_rows(rows)
     body = []
     for t in tasks:
@@ -123,7 +126,7 @@ def score_table(rows, tasks, methods) -> list[str]:
             if not rs:
                 cells.append("")
                 continue
-            text = report.score_cell(rs)
+            text = report.score_cell(rs, bool(stale) and any(stale.get(key(r)) for r in rs))
             if m in best:
                 cells.append(("★ " + text, "best"))
             elif text == "failed":
@@ -198,6 +201,36 @@ def problem_table(rows, tasks, methods) -> list[str]:
                   table_id="problems")
 
 
+def stale_section(rows, stale, include_stale: bool) -> list[str]:
+    """HTML lines: how many rows are stale, why, and whether the tables include them."""
+    bad = [r for r in rows if stale.get(key(r))]
+    if not bad:
+        return ['<p class="note">None: every row was measured on today\'s task specs, code '
+                "and method configs.</p>"]
+    what = ("They are included in the tables above, their cells marked †." if include_stale
+            else "They are left out of the tables, charts and episodes above (dax-bench "
+                 "report --include-stale includes them).")
+    lines = [f'<p class="warn">{len(bad)} of {len(rows)} rows are stale: they no longer '
+             f"describe today's code. {_e(what)}</p>"]
+    body = [[reason, str(len(rs)), ", ".join(dict.fromkeys(r["task"] for r in rs)),
+             ", ".join(dict.fromkeys(r["method"] for r in rs))]
+            for reason, rs in report.stale_groups(bad, stale).items()]
+    return lines + _table(["why", "rows", "tasks", "methods"], body, name_cols=4,
+                          table_id="stale")
+
+
+def provenance_table(rows) -> list[str]:
+    """HTML lines: the distinct provenances of the rows (versions, commit, precision,
+    device) with how many rows have each."""
+    cols = ("versions", "commit", "precision", "device")
+    counts: dict = {}
+    for r in rows:
+        k = tuple(r.get(c, "") for c in cols)
+        counts[k] = counts.get(k, 0) + 1
+    body = [[*(v or "unknown" for v in k), str(n)] for k, n in counts.items()]
+    return _table([*cols, "rows"], body, name_cols=4, table_id="provenance")
+
+
 def compute_seconds(rows) -> float:
     """The run's compute [s] as its rows record it: every row's ``wall_s`` plus each
     (task, method)'s compilation once per distinct ``compile_s`` (a run's seeds share one)."""
@@ -269,10 +302,10 @@ def run_section(run: Mapping) -> list[str]:
                                           for k, v in sorted(machine.items())], name_cols=2)
         versions = inv.get("versions", {})
         lines += _table(["package", "version"], sorted(versions.items()), name_cols=2)
-    for key in ("task_overrides", "method_overrides"):
-        if run.get(key):
-            lines.append(f"<p>{_e(key.replace('_', ' '))}:</p>"
-                         f"<pre>{_e(json.dumps(run[key], indent=1, sort_keys=True))}</pre>")
+    for name in ("task_overrides", "method_overrides"):
+        if run.get(name):
+            lines.append(f"<p>{_e(name.replace('_', ' '))}:</p>"
+                         f"<pre>{_e(json.dumps(run[name], indent=1, sort_keys=True))}</pre>")
     return lines
 
 
@@ -281,33 +314,46 @@ def _size(out: Path, rels) -> int:
 
 
 def write_page(out, rows: list[Mapping], run: Mapping, pictures: list, tasks: Sequence[str],
-               methods: Sequence[str], title: str = "DaX benchmark") -> Path:
-    """Write ``out/index.html`` (atomically) from the results ``rows`` (one budget), the
-    run file's contents ``run``, the episode ``pictures`` (:func:`dax_algos.bench.episodes.
-    episode_pictures`), with ``tasks`` and ``methods`` in that order."""
+               methods: Sequence[str], title: str = "DaX benchmark", stale=None,
+               include_stale: bool = False) -> Path:
+    """Write ``out/index.html`` (atomically) from the results ``rows`` (one budget, the rows
+    that count), the run file's contents ``run``, the episode ``pictures``
+    (:func:`dax_algos.bench.episodes.episode_pictures`), with ``tasks`` and ``methods`` in
+    that order. ``stale``: ``{row key: why}`` of the rows that no longer describe today's
+    code; they are named, and left out of the tables unless ``include_stale``."""
     out = Path(out)
-    tasks = [t for t in tasks if any(r["task"] == t for r in rows)]
-    methods = [m for m in methods if any(r["method"] == m for r in rows)]
-    seeds = sorted({int(r["seed"]) for r in rows})
+    stale = stale or {}
+    all_rows, rows = rows, report.counted(rows, stale, include_stale)
+    tasks = [t for t in tasks if any(r["task"] == t for r in all_rows)]
+    methods = [m for m in methods if any(r["method"] == m for r in all_rows)]
+    seeds = sorted({int(r["seed"]) for r in all_rows})
     budgets = sorted({r.get("budget", "") for r in rows})
-    counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "failed", "skipped")}
-    charts = [f"chart_{t}.png" for t in tasks if (out / f"chart_{t}.png").is_file()]
-    curves = [f"learning_{t}.png" for t in tasks if (out / f"learning_{t}.png").is_file()]
+    counts = {s: sum(r["status"] == s for r in all_rows)
+              for s in ("ok", "failed", "skipped")}
+    counted_tasks = [t for t in tasks if any(r["task"] == t for r in rows)]  # not all stale
+    charts = [f"chart_{t}.png" for t in counted_tasks if (out / f"chart_{t}.png").is_file()]
+    curves = [f"learning_{t}.png" for t in counted_tasks
+              if (out / f"learning_{t}.png").is_file()]
     shown = [p for p in pictures if p.gif]
     pics = [x for p in shown for x in (p.gif, p.strip)]
     render_s = sum(p.render_s for p in shown)
     run_s = compute_seconds(rows)
+    n_stale = sum(bool(stale.get(key(r))) for r in all_rows)
+    stale_note = (f" <span class=\"warn\">{n_stale} rows are stale (see Stale rows)"
+                  f"{', included and marked †' if include_stale else ', left out'}.</span>"
+                  if n_stale else "")
     body = [f"<h1>{_e(title)}</h1>",
             f"<p>{len(tasks)} task(s) × {len(methods)} method(s) × seeds {_e(seeds)}, "
             f"budget {_e(', '.join(budgets))}: {counts['ok']} runs finished, "
             f"{counts['failed']} failed, {counts['skipped']} skipped (the method does not "
-            f"apply). Files beside this page: results.csv (every run), results.md.</p>",
+            f"apply). Files beside this page: results.csv (every run), results.md."
+            f"{stale_note}</p>",
             "<h2>Score</h2>",
             '<p class="note">Episode score = the ground-truth reward r_gt = exp(-λ·D(s_T, g))'
-            " after the <b>final</b> step (evaluation uses r_gt only). Cells: mean ± "
-            "standard error over seeds (failed runs excluded and counted); ★ and bold: the "
-            "best mean on the task.</p>",
-            *score_table(rows, tasks, methods),
+            " after the <b>final</b> step (evaluation uses r_gt only); failed runs excluded "
+            f"and counted. {_e(report.se_note(methods))} ★ and bold: the best mean on the "
+            "task.</p>",
+            *score_table(rows, tasks, methods, stale),
             "<h2>Compute per run</h2>",
             '<p class="note">Means over the finished runs: wall time of the compiled '
             "episode (training and evaluation for a learner; compilation excluded), "
@@ -334,8 +380,12 @@ def write_page(out, rows: list[Mapping], run: Mapping, pictures: list, tasks: Se
              f"take {_size(out, pics) / 1e6:.2f} MB.</p>",
              *episode_section(pictures, tasks),
              "<h2>Failed and skipped runs</h2>",
-             *problem_table(rows, tasks, methods),
+             *problem_table(all_rows, tasks, methods),
+             "<h2>Stale rows</h2>",
+             *stale_section(all_rows, stale, include_stale),
              "<h2>Run</h2>",
+             '<p class="note">What the rows record they were measured on:</p>',
+             *provenance_table(all_rows),
              *run_section(run)]
     text = "\n".join(["<!DOCTYPE html>", '<html lang="en">', "<head>",
                       '<meta charset="utf-8">',

@@ -3,7 +3,8 @@ tasks), ``chart_<task>.png`` (score against wall time and simulated environment 
 the learning curves' charts and the results page ``index.html`` (:mod:`.page`, with each
 (task, method)'s median episode replayed and drawn, :mod:`.episodes`), all rewritten from
 ``results.csv`` (:func:`write_reports`, at the end of every grid; :func:`report_dir`, for
-``dax-bench report``)."""
+``dax-bench report``). Stale rows (:mod:`.provenance`) are named and left out of the
+means unless asked for."""
 
 from __future__ import annotations
 
@@ -13,41 +14,122 @@ import dax_tasks
 from dax_tasks.io import atomic_write, exclusive
 
 from .. import registry
-from . import episodes, learning, page, report, rundir
-from .rows import read_rows
+from . import episodes, learning, page, provenance, report, rundir
+from .rows import key, latest, read_rows
 
 
-def write_reports(rows, out: Path, budget: str, make_env=None) -> Path:
+def write_reports(rows, out: Path, budget: str, make_env=None, include_stale: bool = False,
+                  today: provenance.Today | None = None) -> Path:
     """Rewrite ``results.md``, the charts and the results page (``index.html``, with the
     median seed's episode of each (task, method) drawn unless it already is) from the rows
-    of ``budget``; returns the page's path. ``make_env(task)`` builds a task as the run did
-    (default: with the task overrides recorded in ``run.json``)."""
-    rows = [r for r in rows if r["budget"] == budget]
-    text = report.markdown(rows, dax_tasks.TASKS, registry.names(),
-                           title=f"DaX benchmark ({budget} budget)")
-    atomic_write(out / "results.md", text)
-    report.charts(rows, out, registry.names())
-    done = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows}
+    of ``budget`` that count (:func:`dax_algos.bench.rows.latest`); returns the page's path.
+
+    Rows that no longer describe today's code (:func:`dax_algos.bench.provenance.
+    stale_reason`: checked against ``today``, default the overrides ``run.json`` records)
+    are listed with their reasons and left out of the tables, charts and pictures unless
+    ``include_stale``. ``make_env(task)`` builds a task as the run did (default: with the
+    task overrides recorded in ``run.json``)."""
+    rows = [r for r in latest(rows) if r["budget"] == budget]
+    run = rundir.read_run_file(out)
+    overrides = {t: rundir.overrides_from_json(t, o)
+                 for t, o in run.get("task_overrides", {}).items() if t in dax_tasks.available()}
+    if today is None:
+        today = provenance.Today(overrides, run.get("method_overrides", {}))
+    stale = {key(r): provenance.stale_reason(r, today) for r in rows}
+    shown = [r for r in rows if include_stale or not stale[key(r)]]
+    title = f"DaX benchmark ({budget} budget)"
+    atomic_write(out / "results.md", report.markdown(
+        rows, dax_tasks.TASKS, registry.names(), title=title, stale=stale,
+        include_stale=include_stale))
+    drawn = report.charts(shown, out, registry.names())
+    for task in dict.fromkeys(r["task"] for r in rows):  # no chart of an earlier report
+        if out / f"chart_{task}.png" not in drawn:
+            (out / f"chart_{task}.png").unlink(missing_ok=True)
+    done = {key(r) for r in shown}
+    references = _references(shown)
     for task in dict.fromkeys(r["task"] for r in rows):
         path = learning.learning_path(out, task)
-        if path.exists():
-            learning.charts(learning.read_curves(path, keep=done), out, registry.names())
-    run = rundir.read_run_file(out)
+        curves = learning.read_curves(path, keep=done) if path.exists() else []
+        if curves:
+            learning.charts(curves, out, registry.names(), references)
+        else:  # no curve counts (none, or only stale runs'): no chart of an earlier report
+            (out / f"learning_{task}.png").unlink(missing_ok=True)
     if make_env is None:
-        overrides = run.get("task_overrides", {})
-
         def make_env(task):
-            return dax_tasks.make(task, **rundir.overrides_from_json(
-                task, overrides.get(task, {})))
+            return dax_tasks.make(task, **overrides.get(task, {}))
 
     tasks = _order(dax_tasks.TASKS, rows, "task")
     methods = _order(registry.names(), rows, "method")
-    pictures = episodes.episode_pictures(out, rows, make_env, tasks, methods)
-    return page.write_page(out, rows, run, pictures, tasks, methods,
-                           title=f"DaX benchmark ({budget} budget)")
+    pictures = episodes.episode_pictures(out, shown, make_env, tasks, methods)
+    return page.write_page(out, rows, run, pictures, tasks, methods, title=title,
+                           stale=stale, include_stale=include_stale)
 
 
-def report_dir(out, budget: str | None = None) -> Path:
+def _references(rows) -> dict:
+    """``{task: {method: mean score}}`` of the reference rows (random, expert) that ran."""
+    refs: dict = {}
+    ok = [r for r in rows if r["status"] == "ok" and r["method"] in ("random", "expert")]
+    for (task, method), rs in report.group_rows(ok).items():
+        refs.setdefault(task, {})[method] = report.mean_se(
+            [report.as_float(r["score"]) for r in rs])[0]
+    return refs
+
+
+def markdown_tables(out, budget: str | None = None, include_stale: bool = False,
+                    tasks=None, methods=None, label: str | None = None) -> str:
+    """The score table of the output directory (or results file) ``out`` as Markdown, what
+    a README holds: methods as rows, tasks as columns (``tasks`` / ``methods``: only these,
+    in this order), the rows of ``budget`` (default: the last row's) that count, stale rows
+    (checked against today's code, :mod:`.provenance`) left out unless ``include_stale``
+    and counted under the table either way, and a line saying where the rows come from
+    (``label``: how to name the file there; default its path)."""
+    out = Path(out)
+    csv_path = out if out.suffix == ".csv" else out / "results.csv"
+    if not csv_path.is_file():
+        raise ValueError(f"{csv_path}: no such results file")
+    rows = latest(read_rows(csv_path))
+    budget = budgets(rows, budget)
+    rows = [r for r in rows if r["budget"] == budget and (tasks is None or r["task"] in tasks)
+            and (methods is None or r["method"] in methods)]
+    run = rundir.read_run_file(csv_path.parent) if out.suffix != ".csv" else {}
+    today = provenance.Today(
+        {t: rundir.overrides_from_json(t, o) for t, o in run.get("task_overrides", {}).items()
+         if t in dax_tasks.available()}, run.get("method_overrides", {}))
+    stale = {key(r): provenance.stale_reason(r, today) for r in rows}
+    tasks = list(tasks) if tasks else _order(dax_tasks.TASKS, rows, "task")
+    methods = list(methods) if methods else _order(registry.names(), rows, "method")
+    lines = report.score_lines(rows, tasks, methods, stale, include_stale)
+    n_stale = sum(bool(v) for v in stale.values())
+    seeds = sorted({int(r["seed"]) for r in rows})
+    span = f"{seeds[0]}-{seeds[-1]}" if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) \
+        else ", ".join(map(str, seeds))
+    lines += ["", f"Rows: `{label or csv_path.as_posix()}`, {budget} budget, seeds {span}; "
+              f"final-step r_gt. " + _provenance_text(rows, stale, n_stale, include_stale)]
+    return "\n".join(lines) + "\n"
+
+
+def _provenance_text(rows, stale, n_stale, include_stale) -> str:
+    if not n_stale:
+        commits = sorted({r["commit"][:12] for r in rows if r.get("commit")})
+        return ("Measured on today's task specs, code and method configs"
+                + (f" (commit {', '.join(commits)})." if commits else "."))
+    reasons = "; ".join(f"{len(rs)}: {why}" for why, rs in report.stale_groups(
+        [r for r in rows if stale[key(r)]], stale).items())
+    what = "included, marked †" if include_stale else "left out"
+    return f"**{n_stale} of {len(rows)} rows are stale** ({what}) — {reasons}."
+
+
+def budgets(rows, budget: str | None) -> str:
+    """``budget``, or the last row's; ``ValueError`` if no row has it."""
+    if not rows:
+        raise ValueError("no runs")
+    budget = rows[-1]["budget"] if budget is None else budget
+    if not any(r["budget"] == budget for r in rows):
+        raise ValueError(f"no runs of the {budget} budget")
+    return budget
+
+
+def report_dir(out, budget: str | None = None, include_stale: bool = False) -> Path:
     """Write the reports of the output directory ``out`` again (:func:`write_reports`,
     holding its results' lock); returns the page's path. ``budget``: whose rows (default:
     the last row's). ``ValueError`` naming the problem for a directory without results."""
@@ -63,7 +145,7 @@ def report_dir(out, budget: str | None = None) -> Path:
         budget = rows[-1]["budget"] if budget is None else budget
         if not any(r["budget"] == budget for r in rows):
             raise ValueError(f"{csv_path}: holds no runs of the {budget} budget")
-        return write_reports(rows, out, budget)
+        return write_reports(rows, out, budget, include_stale=include_stale)
 
 
 def _order(preferred, rows, col) -> list:

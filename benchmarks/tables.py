@@ -1,0 +1,184 @@
+"""Tables generated from result files, and the README blocks that hold them.
+
+    python -m benchmarks.tables scores DIR [--tasks T1,T2] [--methods M1,M2]
+                                           [--budget quick|full] [--include-stale]
+    python -m benchmarks.tables throughput FILE
+    python -m benchmarks.tables check [README.md ...]
+    python -m benchmarks.tables update [README.md ...]
+
+``scores``: the score table of a published grid (a directory under ``benchmarks/results/``
+holding ``results.csv`` and ``run.json``, or a results CSV), as ``dax-bench report
+--markdown`` prints it (:func:`dax_algos.bench.summary.markdown_tables`): methods as rows,
+tasks as columns, the standard-error convention and where the rows come from stated under
+the table, stale rows (:mod:`dax_algos.bench.provenance`) left out unless
+``--include-stale`` (then marked †). ``throughput``: the task throughput table that
+``benchmarks.tasks.render_throughput_table`` renders from its JSON file.
+
+A README holds a generated table between two markers::
+
+    <!-- generated: python -m benchmarks.tables scores benchmarks/results/DIR --include-stale -->
+    ...the command's output...
+    <!-- end generated -->
+
+``check`` renders every block of the given READMEs (default: every ``README.md`` of the
+repository) again and exits 1 naming each block that differs; ``update`` rewrites them.
+Paths in a marker are relative to the repository root; run from there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import re
+import shlex
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+BEGIN = "<!-- generated: python -m benchmarks.tables "
+END = "<!-- end generated -->"
+_BLOCK = re.compile(r"^<!-- generated: python -m benchmarks\.tables (?P<args>.*?) -->\n"
+                    r"(?P<body>.*?)^<!-- end generated -->$", re.M | re.S)
+#: directories never searched for READMEs
+_SKIP = {".git", ".nox", ".venv", "venv", "node_modules", "__pycache__", "build", "dist"}
+
+
+def _names(text: str | None):
+    return None if text is None else [n.strip() for n in text.split(",") if n.strip()]
+
+
+def render_scores(path, tasks=None, methods=None, budget=None, include_stale=False) -> str:
+    """The score table of the grid at ``path`` (see the module docstring)."""
+    from dax_algos.bench import summary
+
+    path = Path(path)
+    full = path if path.is_absolute() else ROOT / path
+    label = (path if path.suffix == ".csv" else path / "results.csv").as_posix()
+    return summary.markdown_tables(full, budget, include_stale, _names(tasks),
+                                   _names(methods), label=label)
+
+
+def render_throughput(path) -> str:
+    """The task throughput table of the JSON file ``path`` (``benchmarks.tasks``)."""
+    from benchmarks import tasks
+
+    render = getattr(tasks, "render_throughput_table", None)
+    if render is None:
+        raise ValueError("benchmarks.tasks has no render_throughput_table yet")
+    text = render(Path(path))
+    return text if text.endswith("\n") else text + "\n"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.tables",
+                                description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="kind", required=True)
+    s = sub.add_parser("scores", help="the score table of a published grid")
+    s.add_argument("path", help="a grid directory (results.csv, run.json) or a results CSV")
+    s.add_argument("--tasks", default=None, help="only these tasks, in this order")
+    s.add_argument("--methods", default=None, help="only these methods, in this order")
+    s.add_argument("--budget", default=None, choices=("quick", "full"))
+    s.add_argument("--include-stale", action="store_true",
+                   help="count stale rows (marked †)")
+    t = sub.add_parser("throughput", help="the task throughput table of a benchmarks.tasks "
+                                          "JSON file")
+    t.add_argument("path")
+    for name, what in (("check", "exit 1 if a README's generated block differs from what "
+                                 "its command renders now"),
+                       ("update", "rewrite every README's generated blocks")):
+        c = sub.add_parser(name, help=what)
+        c.add_argument("readmes", nargs="*", help="README files (default: every README.md "
+                                                  "of the repository)")
+    return p
+
+
+def render(argv) -> str:
+    """What ``python -m benchmarks.tables`` prints for the table arguments ``argv``."""
+    args = _parser().parse_args(list(argv))
+    if args.kind == "scores":
+        return render_scores(args.path, args.tasks, args.methods, args.budget,
+                             args.include_stale)
+    if args.kind == "throughput":
+        return render_throughput(args.path)
+    raise ValueError(f"{args.kind} renders no table")
+
+
+def readmes(root: Path = ROOT) -> list[Path]:
+    """Every ``README.md`` under ``root`` (not in hidden, virtual-environment or build
+    directories), sorted."""
+    found = []
+    for path in sorted(root.rglob("README.md")):
+        rel = path.relative_to(root).parts[:-1]
+        if not any(p in _SKIP or p.startswith(".") for p in rel):
+            found.append(path)
+    return found
+
+
+def blocks(text: str) -> list[tuple[re.Match, list]]:
+    """The generated blocks of a README's ``text``: ``(match, table arguments)``."""
+    return [(m, shlex.split(m["args"])) for m in _BLOCK.finditer(text)]
+
+
+def stale_blocks(path: Path) -> list[tuple[str, str]]:
+    """``(marker arguments, unified diff)`` for each block of ``path`` whose body is not
+    what its command renders now (a block whose command fails: the error as the diff)."""
+    text = path.read_text()
+    out = []
+    for m, argv in blocks(text):
+        try:
+            now = render(argv)
+        except (ValueError, OSError, SystemExit) as err:
+            out.append((m["args"], f"the command fails: {err}"))
+            continue
+        if now != m["body"]:
+            diff = "".join(difflib.unified_diff(m["body"].splitlines(True),
+                                                now.splitlines(True), "README", "now"))
+            out.append((m["args"], diff))
+    return out
+
+
+def update(path: Path) -> int:
+    """Rewrite the generated blocks of ``path``; returns how many changed."""
+    text = path.read_text()
+    changed = 0
+
+    def fill(m):
+        nonlocal changed
+        now = render(shlex.split(m["args"]))
+        changed += now != m["body"]
+        return f"{BEGIN}{m['args']} -->\n{now}{END}"
+
+    new = _BLOCK.sub(fill, text)
+    if new != text:
+        path.write_text(new)
+    return changed
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    if args.kind in ("scores", "throughput"):
+        try:
+            print(render(argv if argv is not None else sys.argv[1:]), end="")
+        except ValueError as err:
+            print(f"benchmarks.tables: error: {err}", file=sys.stderr)
+            return 2
+        return 0
+    paths = [Path(p) for p in args.readmes] or readmes()
+    if args.kind == "update":
+        for p in paths:
+            n = update(p)
+            if n:
+                print(f"{p}: {n} block(s) rewritten")
+        return 0
+    bad = [(p, a, d) for p in paths for a, d in stale_blocks(p)]
+    for p, a, d in bad:
+        print(f"{p}: the block of `python -m benchmarks.tables {a}` differs from its "
+              f"files:\n{d}")
+    if bad:
+        print(f"{len(bad)} generated block(s) out of date; `python -m benchmarks.tables "
+              f"update` rewrites them", file=sys.stderr)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""Provenance on every results row (issue 37): each row records the task's fingerprint, the
+spec's and params' digests, the method's config digest, versions, commit, precision and
+device; when the task's spec (or the method's config) changes, the report, results.md and
+the page mark the old rows stale and leave them out of the means unless asked."""
+
+import dataclasses
+import re
+
+import pytest
+from algos_helpers import cheap_cloth_overrides
+
+import dax_tasks
+from dax_algos import registry
+from dax_algos.bench import page, provenance, runner, summary
+from dax_algos.bench.grid import run_grid
+from dax_tasks.core import registry as task_registry
+
+TASK = "fold_cloth1"
+PPO = dict(total_env_steps=48, num_envs=8, unroll_length=2, minibatches=2, n_eval=2,
+           policy_hidden=(16,), value_hidden=(16,))
+OVERRIDES = {TASK: cheap_cloth_overrides(horizon=2)}
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    out = tmp_path_factory.mktemp("prov")
+    rows = run_grid(TASK, "random,ppo", seeds=2, out=out, quick=True,
+                    task_overrides=OVERRIDES, method_overrides={"ppo": PPO},
+                    cache_goal=False, progress=False)
+    return out, rows
+
+
+@pytest.fixture
+def changed_spec(monkeypatch):
+    """Fold-Cloth-1's registered default spec with another observation stride."""
+    entry = task_registry._REGISTRY[TASK]
+    spec = dataclasses.replace(dax_tasks.get_spec(TASK), obs_stride=2)
+    monkeypatch.setitem(task_registry._REGISTRY, TASK, dataclasses.replace(entry, spec=spec))
+
+
+def _page_tables(out):
+    text = (out / page.PAGE).read_text()
+    return text, {tid: re.findall(r"<tr>(.*?)</tr>", body)
+                  for tid, body in re.findall(r'<table id="(\w+)">(.*?)</table>', text, re.S)}
+
+
+def test_every_row_records_what_it_was_measured_on(grid):
+    _, rows = grid
+    env = dax_tasks.make(TASK, cache_goal=False, **OVERRIDES[TASK])
+    for r in rows:
+        assert r["task_fingerprint"] == env.spec.fingerprint(), r
+        assert r["spec_digest"] == provenance.spec_digest(env.spec)
+        assert r["params_digest"] == provenance.tree_digest(env.default_params)
+        config = registry.get(r["method"]).config("quick", TASK,
+                                                  **(PPO if r["method"] == "ppo" else {}))
+        assert r["config_digest"] == provenance.config_digest(config)
+        assert "dax-algos=" in r["versions"] and "jax=" in r["versions"]
+        assert r["precision"] == "float32" and r["device"].startswith("cpu:")
+        assert r["commit"] == provenance.commit()
+    digests = {r["config_digest"] for r in rows}
+    assert len(digests) == 2  # random's and ppo's
+
+
+def test_nothing_is_stale_while_the_code_is_unchanged(grid):
+    out, _ = grid
+    summary.report_dir(out)
+    text, tables = _page_tables(out)
+    assert "stale" not in tables and "rows are stale" not in text
+    assert "## Stale rows" not in (out / "results.md").read_text()
+    assert all("±" in cell for cell in re.findall(r"<td[^>]*>([^<]*)</td>",
+                                                   tables["scores"][1])[1:])
+
+
+def test_a_changed_task_spec_marks_the_old_rows_stale_on_the_page_and_in_the_report(
+        grid, changed_spec, capsys):
+    out, rows = grid
+    assert runner.main(["report", "--out", str(out)]) == 0
+    text, tables = _page_tables(out)
+    assert "4 rows are stale (see Stale rows), left out" in text
+    (stale_row,) = tables["stale"][1:]
+    assert "the task&#x27;s spec changed" in stale_row and ">4<" in stale_row, stale_row
+    assert re.findall(r"<td[^>]*>([^<]*)</td>", tables["scores"][1])[1:] == ["", ""]
+    md = (out / "results.md").read_text()
+    assert "## Stale rows" in md and "4 of 4 rows no longer describe today's code" in md
+    assert "| random |  |" in md  # left out of the means
+    # asked for, they are counted and marked
+    assert runner.main(["report", "--out", str(out), "--include-stale"]) == 0
+    _, tables = _page_tables(out)
+    assert all(c.endswith("†") for c in re.findall(r"<td[^>]*>([^<]*)</td>",
+                                                    tables["scores"][1])[1:])
+    capsys.readouterr()
+    assert runner.main(["report", "--out", str(out), "--markdown"]) == 0
+    printed = capsys.readouterr().out
+    assert "**4 of 4 rows are stale** (left out)" in printed and "spec changed" in printed
+
+
+def test_a_changed_method_config_marks_only_that_methods_rows_stale(grid, monkeypatch):
+    out, _ = grid
+    ppo = registry.get("ppo")
+    budgets = {**ppo.budgets, "quick": {**ppo.budgets["quick"], "learning_rate": 0.5}}
+    monkeypatch.setitem(registry._METHODS, "ppo", dataclasses.replace(ppo, budgets=budgets))
+    summary.report_dir(out)
+    _, tables = _page_tables(out)
+    (stale_row,) = tables["stale"][1:]
+    assert "the method&#x27;s config changed" in stale_row and "ppo" in stale_row
+    cells = re.findall(r"<td[^>]*>([^<]*)</td>", tables["scores"][1])[1:]
+    assert "±" in cells[0] and cells[1] == "", cells  # random counted, ppo left out
+
+
+def test_stale_reason_tells_a_changed_spec_from_changed_code(grid, monkeypatch):
+    _, rows = grid
+    today = provenance.Today(OVERRIDES, {"ppo": PPO})
+    assert provenance.stale_reason(rows[0], today) == ""
+    other_code = dict(rows[0], task_fingerprint="0123456789ab")
+    assert "code changed" in provenance.stale_reason(other_code, today)
+    other_spec = dict(other_code, spec_digest="ba9876543210")
+    assert "spec changed" in provenance.stale_reason(other_spec, today)
