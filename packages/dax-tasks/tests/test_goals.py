@@ -68,6 +68,18 @@ def test_fingerprint_covers_every_spec_field_and_the_code(monkeypatch):
     assert base.fingerprint() != before, "the fingerprint ignores the source code"
 
 
+def test_the_code_digest_follows_the_program_not_its_comments_or_docstrings():
+    from dax_tasks.core.spec import _program_text
+
+    base = _program_text(b'"""Module."""\nX = 1\n\n\ndef f(a):\n    """Doc."""\n    return a + X\n')
+    reworded = _program_text(b'"""Other words."""\nX = 1  # a comment\n\ndef f(a):\n'
+                             b'    """New doc."""\n    return a + X\n')
+    changed = _program_text(b'"""Module."""\nX = 1\n\n\ndef f(a):\n    """Doc."""\n'
+                            b'    return a - X\n')
+    assert base == reworded, "a docstring, comment or layout edit changed the digest"
+    assert base != changed, "a changed program kept its digest"
+
+
 def test_spec_round_trips_through_json_without_module_paths():
     import json as _json
 

@@ -14,6 +14,7 @@ other code is never mistaken for this one's).
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import functools
 import hashlib
@@ -236,15 +237,35 @@ def _build(cls, fields: dict):
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
-    """SHA-256 of the Python sources of dax_tasks and dax_physics: a goal or demonstration
-    computed by one version of the code is not reused by another (a changed fold or
-    settling time changes the result without changing the spec)."""
+    """SHA-256 of the programs of dax_tasks and dax_physics: each module's syntax tree
+    with its docstrings left out (:func:`_program_text`), so a goal, demonstration or
+    benchmark row computed by one version of the code is not taken for another's (a
+    changed fold or settling time changes the result without changing the spec), while an
+    edit of comments, docstrings or layout changes nothing."""
     h = hashlib.sha256()
     for package in (Path(__file__).parent, Path(dax_physics.__file__).parent):
         for src in sorted(package.rglob("*.py")):
             h.update(src.relative_to(package.parent).as_posix().encode())
-            h.update(src.read_bytes())
+            h.update(_program_text(src.read_bytes()).encode())
     return h.hexdigest()
+
+
+def _program_text(source: bytes) -> str:
+    """``ast.dump`` of ``source`` without line numbers and without docstrings (the first
+    statement of a module, class or function body when it is a string constant); the
+    source itself if it does not parse."""
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return source.decode("utf-8", "replace")
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant)
+                and isinstance(body[0].value.value, str)):
+            node.body = body[1:] or [ast.Pass()]
+    return ast.dump(tree, include_attributes=False)
 
 
 @dataclasses.dataclass(frozen=True)
