@@ -226,7 +226,7 @@ def lint(session: nox.Session) -> None:
 
 
 #: The main job: `dax-bench run --preset demo` (dax_algos.bench.presets: Fold-Cloth-1; random,
-#: expert, CEM-MPC, diff-MPC and PPO; two seeds; quick budgets). Arguments after `--`
+#: expert, CEM-MPC, diff-MPC and ILD; two seeds; quick budgets). Arguments after `--`
 #: replace it, e.g. `nox -s demo -- --preset cloth` (the grid of three cloth tasks, every
 #: method) or `nox -s demo -- --tasks all --methods all --seeds 5 --out results`.
 DEMO_ARGS = ["--preset", "demo"]

@@ -234,11 +234,28 @@ def test_the_cli_says_what_is_left_with_exit_3(tmp_path, capsys, monkeypatch):
 def test_the_paper_preset_is_every_task_and_method_at_full_budgets_five_seeds():
     args = runner._parser().parse_args(["run", "--preset", "paper"])
     assert runner._grid_args(args) == dict(tasks="all", methods="all", seeds=5,
-                                           out="results_paper", quick=False)
+                                           out="results_paper", quick=False,
+                                           method_overrides={})
     args = runner._parser().parse_args(["run", "--preset", "paper", "--tasks", TASK,
                                         "--seeds", "2", "--quick"])
     assert runner._grid_args(args) == dict(tasks=TASK, methods="all", seeds=2,
-                                           out="results_paper", quick=True)
+                                           out="results_paper", quick=True,
+                                           method_overrides={})
+
+
+def test_the_demo_preset_gives_its_learner_a_config_that_builds():
+    """The demo's method overrides reach the grid and make a valid config of the method
+    they name (a misspelt field would fail only inside the demo's run)."""
+    from dax_algos import registry
+
+    args = runner._parser().parse_args(["run", "--preset", "demo"])
+    g = runner._grid_args(args)
+    assert set(g["method_overrides"]) <= set(g["methods"].split(","))
+    for name, fields in g["method_overrides"].items():
+        method = registry.get(name)
+        config = method.config_cls(**{**method.budgets["quick"], **fields})
+        for field, value in fields.items():
+            assert getattr(config, field) == value, (name, field)
 
 
 # ----------------------------------------------------------------------- old files

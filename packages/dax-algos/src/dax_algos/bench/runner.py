@@ -124,7 +124,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _grid_args(args) -> dict:
-    """The grid of a ``run`` command: the preset's values, replaced by those given."""
+    """The grid of a ``run`` command: the preset's values (its method overrides
+    included), replaced by those given."""
     pre = presets.get(args.preset) if args.preset else None
 
     def pick(name, default):
@@ -133,7 +134,8 @@ def _grid_args(args) -> dict:
 
     budget = args.budget or ("quick" if pre and pre.quick else "full")
     return dict(tasks=pick("tasks", "all"), methods=pick("methods", "all"),
-                seeds=pick("seeds", 1), out=pick("out", "results"), quick=budget == "quick")
+                seeds=pick("seeds", 1), out=pick("out", "results"), quick=budget == "quick",
+                method_overrides=dict(pre.method_overrides) if pre else {})
 
 
 def main(argv=None) -> int:
