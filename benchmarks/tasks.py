@@ -7,10 +7,18 @@ stdout (``--json``); progress on stderr. Speed is measured here, never asserted 
     python -m benchmarks.tasks --json --tasks fold_cloth1 --batch 1 --reps 5
     python -m benchmarks.tasks --json --resolution default,reference --batch 1
     python -m benchmarks.tasks resolution --task fold_cloth1 --out DIR
+    python -m benchmarks.tasks throughput --out benchmarks/results/DATE-throughput.json
 
 The ``resolution`` subcommand is the speed-versus-accuracy study of one task
 (:mod:`benchmarks.resolution`): the expert's episode on a ladder of resolutions,
 each compared with a fine reference, one chart and one JSON per task.
+
+The ``throughput`` subcommand (:func:`throughput_main`) is the tracked batched figure:
+env steps per second at batch 1, 16 and 64 for every task, forward and with the action
+gradient, compile time apart, the load average and the resolution recorded, one JSON
+document; a batch too heavy for the machine is recorded as not measured, with the reason.
+:func:`render_throughput_table` prints the README's table from that file
+(``python -m benchmarks.tables throughput FILE``).
 
 ``--resolution reference`` builds each task at the original DaXBench benchmark's particle
 or vertex count and substeps per step (``dax_tasks.make(name, resolution="reference")``),
@@ -30,8 +38,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
+import json
+import os
+import platform
 import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -181,6 +194,8 @@ def main(argv=None, overrides: dict | None = None) -> list:
         from benchmarks.resolution import main as resolution_main
 
         return resolution_main(argv[1:])
+    if argv[:1] == ["throughput"]:
+        return throughput_main(argv[1:], overrides)
     args = build_parser().parse_args(argv)
     try:
         names = parse_tasks(args.tasks)
@@ -204,6 +219,182 @@ def main(argv=None, overrides: dict | None = None) -> list:
             emit(rec, args.json)
             records.append(rec)
     return records
+
+
+# ------------------------------------------------------------------ batched throughput
+
+#: The batch sizes of the tracked throughput figure.
+THROUGHPUT_BATCHES = (1, 16, 64)
+
+
+def _load() -> float:
+    return round(os.getloadavg()[0], 2)
+
+
+def _skip_reason(prev: dict | None, batch: int, limit_s: float, grad: bool) -> str | None:
+    """Why ``batch`` is not measured, from the last measured row ``prev`` (call times
+    scale about linearly with the batch on a CPU), or None."""
+    if prev is None or not prev.get("measured"):
+        return None
+    key = "grad_s" if grad and prev.get("grad_s") else "step_s"
+    est = prev[key] * batch / prev["batch"]
+    if est > limit_s:
+        what = "step-plus-gradient" if key == "grad_s" else "step"
+        return (f"too heavy for this machine: one {what} call would take about {est:.2g} s "
+                f"(batch {prev['batch']}'s {prev[key]:.2f} s scaled linearly), over the "
+                f"{limit_s:g} s limit per call (--max-call-s)")
+    return None
+
+
+def throughput_row(env, batch: int, reps: int, min_time: float, grad: bool,
+                   clock=time.perf_counter) -> dict:
+    """One row of the throughput figure: ``env`` (unbatched) at ``batch`` (1: the env
+    itself, else a :class:`VmapWrapper`), the step and the step plus the gradient of the
+    summed reward with respect to the actions, each compiled ahead of time and then timed
+    (median call time ``step_s`` / ``grad_s`` [s]); ``steps_per_s`` / ``grad_steps_per_s``
+    = batch / median; the XLA temporaries of the gradient [MiB]; the 1-minute load average
+    before and after."""
+    load0 = _load()
+    rec = bench_batch(env, None if batch == 1 else batch, reps, min_time, grad, clock)
+    out = {"batch": batch, "measured": True, "step_s": rec["step_s"],
+           "steps_per_s": batch / rec["step_s"], "grad_s": rec["step_grad_s"],
+           "grad_steps_per_s": None if rec["step_grad_s"] is None
+           else batch / rec["step_grad_s"],
+           "compile_step_s": rec["compile_step_s"], "compile_grad_s": rec["compile_grad_s"],
+           "grad_finite": rec["grad_finite"], "peak_rss_mb": peak_rss_mb(),
+           "load_1min": [load0, _load()]}
+    return out
+
+
+def throughput(names, batches=THROUGHPUT_BATCHES, reps: int = 3, min_time: float = 0.0,
+               resolution_name: str = "default", grad: bool = True, max_call_s: float = 30.0,
+               overrides: dict | None = None, clock=time.perf_counter) -> dict:
+    """The throughput document (see :func:`throughput_main`): per task its resolution
+    (:func:`resolution`) and one :func:`throughput_row` per batch size, in increasing
+    order; a batch whose call, scaled from the last measured batch, would exceed
+    ``max_call_s`` seconds is recorded ``measured: false`` with the reason, and so is one
+    whose compile or run fails (the error)."""
+    doc = {"bench": "throughput", "date": datetime.date.today().isoformat(),
+           "resolution": resolution_name, "batches": sorted(batches), "reps": reps,
+           "min_time_s": min_time, "max_call_s": max_call_s,
+           "clock": "process" if clock is time.process_time else "wall",
+           "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
+           "machine": platform.machine(), "jax": jax.__version__,
+           # compile times with a persistent cache that holds the program are its load time
+           "compilation_cache": bool(jax.config.jax_compilation_cache_dir),
+           "load_1min_start": _load(), "tasks": []}
+    for name in names:
+        env = make(name, resolution=resolution_name, **(overrides or {}))
+        task = {"task": name, **resolution(env), "rows": []}
+        prev = None
+        for b in sorted(batches):
+            print(f"[benchmarks.tasks throughput] {name} ({resolution_name}) batch {b}",
+                  file=sys.stderr, flush=True)
+            reason = _skip_reason(prev, b, max_call_s, grad)
+            if reason is None:
+                try:
+                    row = throughput_row(env, b, reps, min_time, grad, clock)
+                except Exception as err:  # noqa: BLE001 - recorded, the run goes on
+                    row = {"batch": b, "measured": False,
+                           "reason": f"failed: {type(err).__name__}: {str(err)[:300]}"}
+            else:
+                row = {"batch": b, "measured": False, "reason": reason}
+            task["rows"].append(row)
+            if row["measured"]:
+                prev = row
+        doc["tasks"].append(task)
+    doc["load_1min_end"] = _load()
+    return doc
+
+
+def throughput_main(argv=None, overrides: dict | None = None) -> dict:
+    """``python -m benchmarks.tasks throughput``: prints the throughput document (and
+    writes it to ``--out``)."""
+    from benchmarks._report import write_report
+
+    p = argparse.ArgumentParser(prog="python -m benchmarks.tasks throughput",
+                                description="Env steps per second of every task at batch "
+                                            "1, 16 and 64, forward and with the action "
+                                            "gradient (one JSON document).")
+    p.add_argument("--tasks", default="all")
+    p.add_argument("--batch", default=",".join(map(str, THROUGHPUT_BATCHES)))
+    p.add_argument("--resolution", default="default", choices=list(RESOLUTIONS))
+    p.add_argument("--reps", type=int, default=3, help="timed calls per figure (median)")
+    p.add_argument("--min-time", type=float, default=0.0,
+                   help="time each figure for at least this many seconds (at most 50 calls)")
+    p.add_argument("--max-call-s", type=float, default=30.0,
+                   help="do not measure a batch whose call, scaled linearly from the last "
+                        "measured batch, would take longer than this [s]")
+    p.add_argument("--no-grad", action="store_true")
+    p.add_argument("--clock", choices=("wall", "process"), default="wall")
+    p.add_argument("--out", default=None, help="write the JSON document here too")
+    args = p.parse_args(argv)
+    try:
+        names = parse_tasks(args.tasks)
+        batches = [int(b) for b in args.batch.split(",")]
+    except ValueError as err:
+        p.error(str(err))
+    if any(b < 1 for b in batches) or args.reps < 1:
+        p.error("batch sizes and --reps must be >= 1")
+    clock = time.process_time if args.clock == "process" else time.perf_counter
+    doc = throughput(names, batches, args.reps, args.min_time, args.resolution,
+                     not args.no_grad, args.max_call_s, overrides, clock)
+    doc["command"] = "python -m benchmarks.tasks throughput " + " ".join(
+        argv if argv is not None else sys.argv[2:])
+    write_report(doc, args.out)
+    return doc
+
+
+def _rate(x: float | None) -> str:
+    """Env steps per second with two or three significant figures."""
+    if x is None:
+        return "-"
+    return f"{x:.0f}" if x >= 100 else f"{x:.3g}"
+
+
+def render_throughput_table(path) -> str:
+    """The Markdown table of a throughput document (:func:`throughput_main`'s JSON file at
+    ``path``): one row per task, per batch size its env steps per second forward and, in
+    parentheses, with the action gradient; a batch not measured is marked and its reason
+    given under the table, with the date, device, load and command of the run."""
+    path = Path(path)
+    root = Path(__file__).resolve().parent.parent  # a relative path: from the repository
+    doc = json.loads((path if path.is_absolute() or path.exists() else root / path)
+                     .read_text())
+    if doc.get("bench") != "throughput":
+        raise ValueError(f"{path}: not a throughput document (bench {doc.get('bench')!r})")
+    batches = doc["batches"]
+    head = ["task", f"{doc['resolution']}: points, substeps × dt"] + [
+        f"batch {b}: env steps/s (with grad)" for b in batches]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    notes = []
+    for t in doc["tasks"]:
+        res = f"{t['object_points']}, {t['substeps']} × {t['scene_dt'] * 1e3:.3g} ms" \
+            if "scene_dt" in t else f"{t['object_points']}, {t['substeps']}"
+        cells = [t["task"], res]
+        rows = {r["batch"]: r for r in t["rows"]}
+        for b in batches:
+            r = rows.get(b)
+            if r is None:
+                cells.append("")
+            elif r["measured"]:
+                cells.append(f"{_rate(r['steps_per_s'])} ({_rate(r['grad_steps_per_s'])})")
+            else:
+                notes.append(f"{t['task']} at batch {b}: {r['reason']}.")
+                cells.append(f"not measured [{len(notes)}]")
+        lines.append("| " + " | ".join(cells) + " |")
+    loads = [x for t in doc["tasks"] for r in t["rows"] if r.get("measured")
+             for x in r["load_1min"]]
+    load = f"{min(loads):.1f}-{max(loads):.1f}" if loads else "-"
+    lines += ["", f"Env steps per second = batch / median call time ({doc['reps']} calls "
+              f"after an ahead-of-time compile, {doc['clock']} clock); with grad: the step "
+              f"plus the gradient of the summed reward with respect to the actions. "
+              f"{doc['date']}, {doc['device']} ({doc['cpu_count']} cores, jax "
+              f"{doc['jax']}), 1-minute load average {load} during the runs; "
+              f"`{path.as_posix()}` (`{doc.get('command', 'benchmarks.tasks throughput')}`)."]
+    for i, n in enumerate(notes, 1):
+        lines += ["", f"[{i}] {n}"]
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

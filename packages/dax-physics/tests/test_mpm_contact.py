@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -282,6 +283,58 @@ def test_grid_colliders_evaluated_near_the_collider_equal_the_whole_window():
         # a node left out would differ by its whole projected velocity, O(1) m/s here
         np.testing.assert_allclose(np.asarray(near), np.asarray(full), atol=1e-4,
                                    err_msg=f"trial {trial}")
+
+
+def test_particles_inside_a_projecting_collider_go_back_onto_its_surface():
+    """project_particles (issue 35): a free particle inside a collider whose spec sets
+    ``project`` moves along the outward normal onto the surface, and its velocity relative
+    to the moving collider keeps only a non-negative normal part (the tangential part is
+    kept); particles outside, held particles and colliders without ``project`` are left
+    alone, and the result is differentiable."""
+    bowl = colliders.ColliderSpec("bowl", (0.05, 0.06, 0.02), "separate", 0.2, project=True)
+    box = colliders.ColliderSpec("box", (0.05, 0.05, 0.05), "separate")  # project False
+    quat = colliders.quat_from_axis_angle(jnp.asarray([0.3, 1.0, 0.2]), 0.7)
+    state = colliders.ColliderState.create(
+        [[0.01, 0.02, -0.01], [0.3, 0.3, 0.3]], jnp.stack([quat, quat]),
+        lin_vel=[[0.2, -0.1, 0.3], [0.0, 0.0, 0.0]], ang_vel=[[1.0, 0.5, -2.0], [0, 0, 0]])
+    R = np.asarray(colliders.quat_to_matrix(quat), np.float64)
+    # bowl r = 5 cm, h = 6 cm, wall 2 cm (local frame): distances inside the solid
+    local = np.asarray([[0.045, 0.0, 0.03],    # 5 mm inside the side wall
+                        [0.0, 0.04, 0.012],    # 10 mm, where the wall meets the bottom
+                        [0.0, -0.041, 0.035],  # 9 mm, nearer the outer face
+                        [0.0, 0.0, 0.04],      # in the cavity (outside the solid)
+                        [0.08, 0.0, 0.03],     # outside
+                        [0.045, 0.0, 0.03]])   # inside, but held
+    x = jnp.asarray(local @ R.T + [0.01, 0.02, -0.01], jnp.float32)
+    v = jax.random.normal(jax.random.PRNGKey(1), x.shape)
+    free = jnp.asarray([True, True, True, True, True, False])
+    phi0, n0 = colliders.sdf(bowl, state.pos[0], state.quat[0], x)
+    inside = np.asarray((phi0 < 0) & free)
+    assert inside.tolist() == [True, True, True, False, False, False], np.asarray(phi0)
+    x1, v1 = colliders.project_particles((bowl, box), state, x, v, free)
+    phi1, _ = colliders.sdf(bowl, state.pos[0], state.quat[0], x1)
+    np.testing.assert_allclose(np.asarray(phi1)[inside], 0.0, atol=2e-6)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(x1 - x), axis=1)[inside],
+                               -np.asarray(phi0)[inside], rtol=1e-4)
+    assert np.array_equal(np.asarray(x1)[~inside], np.asarray(x)[~inside])
+    assert np.array_equal(np.asarray(v1)[~inside], np.asarray(v)[~inside])
+    rel0 = np.asarray(v - colliders.velocity_at(state, 0, x1))
+    rel1 = np.asarray(v1 - colliders.velocity_at(state, 0, x1))
+    n = np.asarray(n0)
+    vn0, vn1 = np.sum(rel0 * n, axis=1), np.sum(rel1 * n, axis=1)
+    assert np.all(vn1[inside] >= -1e-6), vn1
+    np.testing.assert_allclose(rel1 - vn1[:, None] * n, rel0 - vn0[:, None] * n, atol=1e-6)
+    # a spec without project: nothing moves
+    x2, v2 = colliders.project_particles((box, dataclasses.replace(bowl, project=False)),
+                                         state.replace(pos=state.pos[::-1],
+                                                       quat=state.quat[::-1]), x, v, free)
+    assert np.array_equal(np.asarray(x2), np.asarray(x))
+    assert np.array_equal(np.asarray(v2), np.asarray(v))
+    g = jax.grad(lambda y: jnp.sum(colliders.project_particles((bowl,), state, y, v, free)[0]
+                                   ** 2))(x)
+    assert np.all(np.isfinite(np.asarray(g)))
+    with pytest.raises(TypeError, match="project"):
+        colliders.ColliderSpec("bowl", (0.05, 0.06, 0.02), project="yes")
 
 
 def test_water_rests_on_a_two_cell_bowl_bottom_without_sinking_into_it():

@@ -13,7 +13,9 @@ of its name, so a profile attributes its time):
 6. :func:`deformation`: the fluids' volume ratio J and the deformation H, with the
    plastic return map (:func:`plasticity`, scope ``deformation/plasticity``);
 7. :func:`held`: colliders advance, and the particles they hold move with them;
-8. :func:`stability`: the ``finite`` flag (positions finite, no particle outrunning dt).
+8. :func:`project`: free particles inside a collider whose spec sets ``project`` go back
+   onto its surface (nothing is compiled when none does);
+9. :func:`stability`: the ``finite`` flag (positions finite, no particle outrunning dt).
 
 Arrays: N particles, a window of M = Wx Wy Wz nodes, C = 4 grid channels (momentum
 [kg m/s] and mass [kg]; 5 with a drive, the driven mass). Matrices per particle are
@@ -210,8 +212,12 @@ def boundaries(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive, o
     if cfg.walls != "none":
         gv = _walls(cfg, origin, gv)
     if cfg.colliders:
+        # materialised: each node's velocity component then carries only its own chain
+        # (the drive and the walls act per component); fused into the colliders' loops,
+        # which mix the three components, every chain would be redone in each of them
+        v = materialise(gv[:, :3])
         gv = jnp.concatenate([col.apply_colliders_grid(
-            cfg.colliders, state.colliders, gv[:, :3], cfg.dx, cfg.window, origin,
+            cfg.colliders, state.colliders, v, cfg.dx, cfg.window, origin,
             params.friction), gv[:, 3:]], axis=1)
     return jnp.where(nodes.has_mass[:, None], gv, 0.0)
 
@@ -325,6 +331,16 @@ def held(cfg: MPMConfig, state: MPMState, x, v, C):
             jnp.where(is_held[:, :, None], 0.0, C), cstate)
 
 
+@jax.named_scope("project")
+def project(cfg: MPMConfig, state: MPMState, x, v, colliders):
+    """``(x, v)`` with the free particles (``state.held < 0``) that ended the substep inside
+    a collider flagged ``project`` moved onto its surface at its new pose ``colliders``
+    (:func:`dax_physics.colliders.project_particles`)."""
+    if not any(c.project for c in cfg.colliders):
+        return x, v
+    return col.project_particles(cfg.colliders, colliders, x, v, state.held < 0)
+
+
 @jax.named_scope("stability")
 def stability(cfg: MPMConfig, params: MaterialParams, state: MPMState, x, v):
     """The new ``finite`` flag (): still finite, every position finite, and no particle
@@ -346,6 +362,7 @@ def _step(cfg: MPMConfig, params: MaterialParams, state: MPMState, drive) -> MPM
     x, v, C = g2p(cfg, state, st, gv)
     J, H = deformation(cfg, params, state, C, Hm)
     x, v, C, colliders = held(cfg, state, x, v, alg.stack3(C))
+    x, v = project(cfg, state, x, v, colliders)
     finite = stability(cfg, params, state, x, v)
     return state.replace(x=x, v=v, C=C, H=H, J=J, colliders=colliders, origin=st.origin,
                          finite=finite, escaped=state.escaped | st.escaped,

@@ -120,6 +120,10 @@ class PourScene:
     pour_angle: float = 2.3              # expert's tilt [rad]
     pour_offset: tuple = (-0.005, 0.0, 0.16)  # expert's wrist target relative to the target
     segment: int = 10                    # substeps per checkpointed segment
+    #: the bowls put particles that end a substep inside their walls back on the surface
+    #: (``ColliderSpec.project``); False: the grid condition alone, which lets water seep
+    #: into the walls (``benchmarks/bowl_walls.py`` measures how far)
+    project: bool = True
 
     @property
     def floor_z(self) -> float:
@@ -131,8 +135,10 @@ def mpm_config(scene: PourScene) -> MPMConfig:
     """The MPM configuration of the scene (raises if ``dt`` is unstable)."""
     mats = [WATER] + ([CHUNK] if scene.n_chunks else [])
     colliders = (
-        ColliderSpec("bowl", scene.source_bowl, mode="separate", friction=BOWL_FRICTION),
-        ColliderSpec("bowl", scene.target_bowl, mode="separate", friction=BOWL_FRICTION),
+        ColliderSpec("bowl", scene.source_bowl, mode="separate", friction=BOWL_FRICTION,
+                     project=scene.project),
+        ColliderSpec("bowl", scene.target_bowl, mode="separate", friction=BOWL_FRICTION,
+                     project=scene.project),
     )
     return MPMConfig(materials=tuple(mats), dx=scene.dx, dt=scene.dt, domain=scene.domain,
                      walls="slip", wall_cells=WALL_CELLS, colliders=colliders,
