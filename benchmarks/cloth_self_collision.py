@@ -1,70 +1,198 @@
-"""What self-collision costs a cloth task per env step (issue 16).
+"""What self-collision costs a cloth task per env step, and the cloth speed targets of
+issue 35 (one interleaved run, JSON).
 
-For each task, one env step (the expert's first action from ``PRNGKey(0)``) compiled ahead
-of time three times, with the task's self-collision (its pair search, every pair on the
-task meshes), with the same contact through the 16-slot spatial hash (``self_search=
-"hash"``, the tasks' search until 2026-11-25) and with ``thickness=0`` (off), then timed
-interleaved (on, hash, off, on, ...) in this one process, so that a load shared with other
-processes falls on all alike; prints one JSON line per task with the medians and the
-ratios to the step without self-collision. Usage:
-    python -m benchmarks.cloth_self_collision [--tasks fold_cloth1,fold_tshirt] [--reps 9]
+Each case is a task at a resolution (``TASK`` or ``TASK@RESOLUTION``); its env step (the
+expert's first action from ``PRNGKey(0)``, batch 1) is compiled ahead of time in up to
+three variants: ``list``, the task's self-collision through its neighbour list (the
+default); ``all``, the same contact testing every vertex pair (``self_search="all"``;
+skipped above ``--all-max`` vertices); ``off``, ``thickness=0``. All variants of all cases
+are then timed interleaved, one call of each in turn for ``--reps`` rounds, in this one
+process, so that a load shared with other processes falls on all alike. Prints one JSON
+line per case (medians, ratios to ``off``, the 1-minute load average before and after)
+and a last line with the targets and whether each is met:
 
-Fold-Cloth-3 and the unfold tasks have Fold-Cloth-1's cloth, contact and substeps.
+* every cloth task (default resolution) with self-collision <= 1.5x its step without;
+* the 529-vertex square cloth at ``resolution="reference"`` <= 2x its step without;
+* Fold-Cloth-1 at the reference (529 vertices, 2000 substeps) without self-collision
+  >= 1.5x as fast as DaXBench (``benchmarks.tasks.DAXBENCH``: <= 0.070 / 1.5 s);
+* Fold-T-shirt at the reference at least as fast as DaXBench (<= 0.664 s), with its
+  self-collision (and, recorded beside it, without).
+
+    python -m benchmarks.cloth_self_collision --out benchmarks/results/DATE-cloth-targets.jsonl
+    python -m benchmarks.cloth_self_collision --cases fold_cloth1,fold_tshirt --reps 9
+
+Speed is measured here, never asserted in tests.
 """
+
+from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
 import os
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
 
 import dax_tasks
+from benchmarks.tasks import DAXBENCH
+
+DEFAULT_CASES = ("fold_cloth1,fold_cloth3,fold_tshirt,unfold_cloth1,unfold_cloth3,"
+                 "fold_cloth1@reference,unfold_cloth3@reference,fold_tshirt@reference")
 
 
-def _compiled(name, thickness, **scene):
-    spec = dax_tasks.get_spec(name)
-    env = dax_tasks.make(name, cache_goal=False,
-                         scene=dataclasses.replace(spec.scene, thickness=thickness, **scene))
+def _compiled(name, resolution, **scene):
+    """``(compiled step, its arguments, facts)`` of ``name`` at ``resolution`` with the
+    scene fields ``scene`` replaced."""
+    base = dax_tasks.get_spec(name, resolution).scene
+    env = dax_tasks.make(name, cache_goal=False, resolution=resolution,
+                         scene=dataclasses.replace(base, **scene))
     params = env.default_params
     _, state = jax.jit(env.reset)(jax.random.PRNGKey(0), params)
     action = env.expert_action(state, params)
+    t0 = time.perf_counter()
     step = jax.jit(env.step).lower(state, action, params).compile()
-    jax.block_until_ready(step(state, action, params))
-    return step, (state, action, params)
+    compile_s = time.perf_counter() - t0
+    out = jax.block_until_ready(step(state, action, params))
+    physics = out[1].physics
+    info = dict(compile_s=round(compile_s, 2), n_vertices=int(physics.x.shape[0]),
+                substeps=env.spec.substeps)
+    if physics.neighbours is not None:
+        info.update(pairs=int(physics.neighbours.count),
+                    overflow=int(physics.neighbours.overflow),
+                    builds=int(physics.neighbours.builds))
+    return step, (state, action, params), info
 
 
-def measure(name, reps):
-    thickness = dax_tasks.get_spec(name).scene.thickness
-    if not thickness > 0:
+def _variants(name, resolution, all_max):
+    scene = dax_tasks.get_spec(name, resolution).scene
+    if not scene.thickness > 0:
         raise ValueError(f"{name} has no self-collision to measure")
-    runs = {"on": _compiled(name, thickness),
-            "hash": _compiled(name, thickness, self_search="hash"),
-            "off": _compiled(name, 0.0)}
-    times = {label: [] for label in runs}
+    out = {"list": _compiled(name, resolution)}
+    if out["list"][2]["n_vertices"] <= all_max:
+        out["all"] = _compiled(name, resolution, self_search="all")
+    out["off"] = _compiled(name, resolution, thickness=0.0)
+    return out
+
+
+def measure(cases, reps: int, all_max: int = 1024) -> list[dict]:
+    """One record per case (``(task, resolution)`` pairs), timed interleaved."""
+    runs = {}
+    for name, res in cases:
+        for variant, run in _variants(name, res, all_max).items():
+            runs[(name, res, variant)] = run
+    load_before = round(os.getloadavg()[0], 2)
+    times = {k: [] for k in runs}
     for _ in range(reps):
-        for label, (step, args) in runs.items():
+        for key, (step, args, _) in runs.items():
             t0 = time.perf_counter()
             jax.block_until_ready(step(*args))
-            times[label].append(time.perf_counter() - t0)
-    on, hashed, off = (float(np.median(times[k])) for k in ("on", "hash", "off"))
-    spec = dax_tasks.get_spec(name)
-    return dict(task=name, thickness_m=thickness, substeps=spec.substeps,
-                self_search=spec.scene.self_search, step_on_s=round(on, 4),
-                step_hash_s=round(hashed, 4), step_off_s=round(off, 4),
-                ratio=round(on / off, 2), ratio_hash=round(hashed / off, 2),
-                reps=reps, load_1min=round(os.getloadavg()[0], 2))
+            times[key].append(time.perf_counter() - t0)
+    load_after = round(os.getloadavg()[0], 2)
+    records = []
+    for name, res in cases:
+        med = {v: float(np.median(times[(name, res, v)]))
+               for (n, r, v) in runs if (n, r) == (name, res)}
+        rec = dict(task=name, resolution=res,
+                   thickness_m=dax_tasks.get_spec(name, res).scene.thickness,
+                   **{f"step_{v}_s": round(t, 5) for v, t in med.items()},
+                   ratio_list=round(med["list"] / med["off"], 2),
+                   ratio_all=round(med["all"] / med["off"], 2) if "all" in med else None,
+                   info={v: runs[(name, res, v)][2] for v in med},
+                   reps=reps, load_1min_before=load_before, load_1min_after=load_after)
+        records.append(rec)
+    return records
+
+
+def targets(records) -> dict:
+    """The issue's targets from the records: ``{name: {value, limit, met}}``."""
+    by = {(r["task"], r["resolution"]): r for r in records}
+    out = {}
+
+    def add(name, value, limit):
+        out[name] = dict(value=value, limit=limit, met=bool(value <= limit))
+
+    for (task, res), r in by.items():
+        if res == "default":
+            add(f"{task}: self-collision / off", r["ratio_list"], 1.5)
+        elif task != "fold_tshirt":
+            add(f"{task}@{res}: self-collision / off", r["ratio_list"], 2.0)
+    if ("fold_cloth1", "reference") in by:
+        r = by[("fold_cloth1", "reference")]
+        add("fold_cloth1@reference off [s] (DaXBench / 1.5)", r["step_off_s"],
+            round(DAXBENCH["fold_cloth1"]["step_s"] / 1.5, 4))
+    if ("fold_tshirt", "reference") in by:
+        r = by[("fold_tshirt", "reference")]
+        add("fold_tshirt@reference with self-collision [s] (DaXBench)", r["step_list_s"],
+            DAXBENCH["fold_tshirt"]["step_s"])
+        add("fold_tshirt@reference off [s] (DaXBench)", r["step_off_s"],
+            DAXBENCH["fold_tshirt"]["step_s"])
+    return out
+
+
+def render_table(path) -> str:
+    """The Markdown table of a result file of this script (``--out``, JSON lines): per case
+    the env step [s] off, with the neighbour list and with every pair, the ratios to off,
+    the list's pairs, builds and overflow; then each target with its limit and whether it
+    was met, and the load the run saw."""
+    lines = [json.loads(t) for t in Path(path).read_text().splitlines() if t.strip()]
+    cases = [r for r in lines if "task" in r]
+    summary = next((r for r in lines if "targets" in r), None)
+
+    def sec(v):
+        return "-" if v is None else f"{v:.3g}"
+
+    out = ["| task | resolution | vertices x substeps | off [s] | neighbour list [s] | "
+           "every pair [s] | pairs / builds / overflow |",
+           "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in cases:
+        info = r.get("info", {}).get("list", {})
+        lst = (f"{sec(r.get('step_list_s'))} ({r['ratio_list']}x)"
+               if r.get("step_list_s") is not None else "-")
+        every = (f"{sec(r.get('step_all_s'))} ({r['ratio_all']}x)"
+                 if r.get("step_all_s") is not None else "-")
+        out.append(f"| {r['task']} | {r['resolution']} | {info.get('n_vertices', '?')} x "
+                   f"{info.get('substeps', '?')} | {sec(r.get('step_off_s'))} | {lst} | "
+                   f"{every} | {info.get('pairs', '-')} / {info.get('builds', '-')} / "
+                   f"{info.get('overflow', '-')} |")
+    loads = [x for r in cases for x in (r.get("load_1min_before"), r.get("load_1min_after"))
+             if x is not None]
+    out.append("")
+    out.append(f"Medians of {cases[0]['reps'] if cases else '?'} interleaved rounds in one "
+               f"process, batch 1, the expert's first action; 1-minute load "
+               f"{min(loads, default=float('nan')):.1f}-{max(loads, default=float('nan')):.1f}"
+               f"{'; ' + summary['date'] if summary and 'date' in summary else ''}.")
+    if summary:
+        out.append("")
+        out.append("| target | measured | limit | met |")
+        out.append("| --- | --- | --- | --- |")
+        for name, t in summary["targets"].items():
+            out.append(f"| {name} | {t['value']:.3g} | {t['limit']:.3g} | "
+                       f"{'yes' if t['met'] else 'no'} |")
+    return "\n".join(out) + "\n"
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", default="fold_cloth1,fold_tshirt")
+    parser.add_argument("--cases", default=DEFAULT_CASES,
+                        help="comma-separated TASK or TASK@RESOLUTION")
     parser.add_argument("--reps", type=int, default=9)
+    parser.add_argument("--all-max", type=int, default=1024,
+                        help="time the all-pairs variant up to this many vertices")
+    parser.add_argument("--out", default=None, help="also write the JSON lines here")
     args = parser.parse_args(argv)
-    for name in args.tasks.split(","):
-        print(json.dumps(measure(name, args.reps)), flush=True)
+    cases = [tuple((c + "@default").split("@")[:2]) for c in args.cases.split(",")]
+    records = measure(cases, args.reps, args.all_max)
+    summary = dict(targets=targets(records), jax=jax.__version__, cpus=os.cpu_count(),
+                   date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
+    lines = [json.dumps(r) for r in records] + [json.dumps(summary)]
+    for line in lines:
+        print(line, flush=True)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -23,21 +23,84 @@ from dax_physics import cloth as c
 
 # ----------------------------------------------------------------------------- cloth-drop
 
-def run_cloth_drop(args):
-    cfg, cloth, state = grid.cloth_drop_scene(args.n, dt=args.dt)
+#: The peers' spring directions (di, dj) on the vertex grid, their family (Cloth.kind: 0
+#: structural, 1 shear, 2 bending) and stiffness [N/m].
+DROP_SPRINGS = ((1, 0, 0, 1000.0), (0, 1, 0, 1000.0), (1, 1, 1, 1000.0), (1, -1, 1, 1000.0),
+                (2, 0, 2, 200.0), (0, 2, 2, 200.0))
+
+
+def cloth_drop_scene(n: int = 64, dt: float = 1e-4, dtype=jnp.float32):
+    """The Taichi and Warp references' cloth-drop scene on the tasks' solver
+    (:mod:`dax_physics.cloth`, its mesh path), the peers' y-up mapped to z-up: returns
+    ``(cfg, cloth, state)``.
+
+    A 1 m x 1 m sheet of n x n vertices (vertex ``i n + j``) and 1 kg; the peers' 12
+    springs per vertex: structural (1,0), (0,1) and shear (1,1), (1,-1) at 1000 N/m,
+    bending two apart (2,0), (0,2) at 200 N/m, dashpot 0.02 N s/m along each; gravity 9.8
+    m/s^2; a frictionless table at z = 0 (the peers' ground clamp). The sheet starts at
+    rest, tilted from 0.02 m to 0.08 m above the table along its first axis; rest lengths
+    are those of that state. Every spring falls in a stencil class
+    (:func:`dax_physics.cloth.spring_layout`: offsets 1, 2, n - 1, n, n + 1, 2 n).
+    """
+    u = np.linspace(0.0, 1.0, n, dtype=np.float32)
+    ii, jj = np.meshgrid(u, u, indexing="ij")
+    x0 = np.stack([ii, jj, np.float32(0.02) + np.float32(0.06) * ii], -1).reshape(-1, 3)
+    a, b = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    pairs, kind, k = [], [], []
+    for di, dj, fam, stiff in DROP_SPRINGS:
+        ok = (a + di < n) & (b + dj >= 0) & (b + dj < n)
+        pairs.append(np.stack([(a * n + b)[ok], ((a + di) * n + b + dj)[ok]], 1))
+        kind.append(np.full(ok.sum(), fam, np.int8))
+        k.append(np.full(ok.sum(), stiff))
+    pairs = np.concatenate(pairs)
+    rest = np.linalg.norm(x0[pairs[:, 1]] - x0[pairs[:, 0]], axis=1)  # in float32
+    V = n * n
+    offsets, table, residual = c.spring_layout(pairs, V)
+    cloth = c.Cloth(rest_pos=jnp.asarray(x0, dtype), mass=jnp.full((V,), 1.0 / V, dtype),
+                    area=jnp.full((V,), 1.0 / V, dtype), pairs=jnp.asarray(pairs, jnp.int32),
+                    kind=jnp.asarray(np.concatenate(kind)),
+                    rest_length=jnp.asarray(rest, dtype),
+                    stiffness=jnp.asarray(np.concatenate(k), dtype),
+                    damping=jnp.full((len(pairs),), 0.02, dtype),
+                    faces=jnp.asarray(c.square_mesh(n)[1]), offsets=offsets,
+                    stencil_edge=jnp.asarray(table, jnp.int32),
+                    residual=jnp.asarray(residual, jnp.int32))
+    cfg = c.ClothConfig(dt=dt, gravity=(0.0, 0.0, -9.8), table_height=0.0)
+    c.check_params(cfg, cloth)
+    return cfg, cloth, c.ClothState.create(cloth, n_grippers=0)
+
+
+def _drop_sim(args):
+    """``(jitted rollout, state, implementation name)`` of ``--path``."""
     steps = args.substeps
-    sim = jax.jit(lambda s: grid.grid_rollout(cfg, cloth, s, steps, unroll=args.unroll))
+    if args.path == "grid":
+        cfg, cloth, state = grid.cloth_drop_scene(args.n, dt=args.dt)
+        return (jax.jit(lambda s: grid.grid_rollout(cfg, cloth, s, steps, unroll=args.unroll)),
+                state, "dax-jax-grid-stencil")
+    cfg, cloth, state = cloth_drop_scene(args.n, dt=args.dt)
+    return (jax.jit(lambda s: c.rollout(cfg, cloth, s, steps, unroll=args.unroll)), state,
+            "dax-cloth-mesh")
+
+
+def run_cloth_drop(args):
+    """The peers' cloth drop on ``--path mesh`` (default: :func:`dax_physics.cloth.rollout`,
+    the solver the cloth tasks run) or ``--path grid`` (``benchmarks.cloth_grid``, the
+    regular-grid stencil no task uses, for comparison)."""
+    sim, state, impl = _drop_sim(args)
+    steps = args.substeps
     t0 = time.perf_counter()
     out = jax.block_until_ready(sim(state))
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(sim(state))  # warm-up
     med, ts = median_time(lambda: sim(state), args.reps)
-    x = np.asarray(out.x)
-    rec = dict(bench="cloth-drop", impl="dax-jax-stencil", n=args.n, substeps=steps,
-               dt=cfg.dt, reps=args.reps, substeps_per_s=steps / med,
+    z = np.asarray(out.x[2] if args.path == "grid" else out.x[:, 2])
+    rec = dict(bench="cloth-drop", impl=impl, path=args.path, n=args.n, substeps=steps,
+               dt=args.dt, reps=args.reps, substeps_per_s=steps / med,
+               us_per_substep=1e6 * med / steps,
                substeps_per_s_runs=[steps / t for t in ts], compile_s=compile_s,
-               mean_height=float(x[2].mean()), min_height=float(x[2].min()),
-               reference_mean_height=0.008108, finite=bool(np.isfinite(x).all()),
+               mean_height=float(z.mean()), min_height=float(z.min()),
+               reference_mean_height=0.008108, finite=bool(np.isfinite(z).all()),
+               load_1min=round(os.getloadavg()[0], 2),
                backend=jax.default_backend(), jax=jax.__version__, threads=os.cpu_count())
     emit(rec, args.json)
     return rec
@@ -255,7 +318,9 @@ def add_subparsers(subparsers):
     """Register ``cloth-drop``, ``cloth-grad``, ``cloth-fold``, ``cloth-mesh`` and
     ``cloth-sag-study`` on an argparse
     subparsers object; each sets ``func`` so the caller runs ``args.func(args)``."""
-    p = subparsers.add_parser("cloth-drop", help="peers' 64x64 cloth-drop scene (stencil path)")
+    p = subparsers.add_parser("cloth-drop", help="peers' 64x64 cloth-drop scene (tasks' solver)")
+    p.add_argument("--path", choices=["mesh", "grid"], default="mesh",
+                   help="mesh: dax_physics.cloth (what the tasks run); grid: cloth_grid.py")
     p.add_argument("--n", type=int, default=64)
     p.add_argument("--substeps", type=int, default=1000)
     p.add_argument("--dt", type=float, default=1e-4)

@@ -15,9 +15,15 @@ wall time when two threads share a loop). Ops are sorted into:
 - ``residual_init``: the zero-fill of the scan's residual stacks, once per call;
 - ``other``: copies and loop bookkeeping with no JAX operation recorded.
 
+``--workload task:NAME[@RESOLUTION]`` profiles one env step of a task instead (its summed
+reward as a function of the action). Each op's time is also summed per MPM substep stage
+(``by_stage``: the ``jax.named_scope`` of ``dax_physics.mpm.substep``'s stages, crossed with
+the categories above; ``other`` outside the stages).
+
 One JSON document to stdout and to ``--out``:
 
     python -m benchmarks.profile_fusions --workload fluid-s1 --mode grad --top 25
+    python -m benchmarks.profile_fusions --workload task:whip_rope@reference --mode fwd
 """
 
 from __future__ import annotations
@@ -48,10 +54,52 @@ def _category(op: str, op_name: str) -> str:
     return "forward"
 
 
+#: The MPM substep's named stages (``dax_physics.mpm.substep``), in order; an op whose JAX
+#: operation sits under one of these scopes is counted to it.
+STAGES = ("stencil", "p2g", "grid_update", "boundaries", "g2p", "deformation", "held",
+          "project", "stability")
+
+
+def _stage(op_name: str) -> str:
+    """The substep stage an op's JAX operation name lies under (the innermost scope that is
+    a stage name), or ``"other"``."""
+    found = "other"
+    for part in re.split(r"[/()]", op_name):
+        if part in STAGES:
+            found = part
+    return found
+
+
+def task_workload(spec: str):
+    """``(loss, arg)`` of one env step of a task, ``spec`` = ``task:NAME[@RESOLUTION]``: the
+    summed reward as a function of the action (the scripted expert's first action, else
+    the middle of the action box), from the start of key 0."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import dax_tasks
+
+    name, _, res = spec.split(":", 1)[1].partition("@")
+    env = dax_tasks.make(name, resolution=res or "default")
+    params = env.default_params
+    state = jax.jit(env.reset)(jax.random.PRNGKey(0), params)[1]
+    if env.has_expert:
+        action = jax.jit(env.expert_action)(state, params)
+    else:
+        action = jnp.asarray(0.5 * (np.asarray(env.spec.action_low)
+                                    + np.asarray(env.spec.action_high)), jnp.float32)
+
+    def loss(a):
+        return jnp.sum(env.step(state, a, params)[2])
+
+    return loss, action
+
+
 def profile(name: str, mode: str, calls: int, top: int) -> dict:
     import jax
 
-    loss, arg = workload(name)
+    loss, arg = task_workload(name) if name.startswith("task:") else workload(name)
     fn = jax.jit(jax.grad(loss) if mode == "grad" else loss).lower(arg).compile()
     ops = {m.group(1): (m.group(2), m.group(3)) for m in _INSTRUCTION.finditer(fn.as_text())}
     for _ in range(2):
@@ -72,13 +120,14 @@ def profile(name: str, mode: str, calls: int, top: int) -> dict:
                     if ev.name in ops or re.fullmatch(r"copy(\.\d+)?|while(\.\d+)?", ev.name):
                         total[ev.name] += ev.duration_ns
                         count[ev.name] += 1
-    by_category = collections.Counter()
+    by_category, by_stage = collections.Counter(), collections.Counter()
     rows = []
     for op, ns in total.most_common():
         shape, op_name = ops.get(op, ("", ""))
         cat = _category(op, op_name) if op_name else "other"
         ms = ns / 1e6 / calls
         by_category[cat] += ms
+        by_stage[f"{_stage(op_name)}/{cat}" if op_name else "other"] += ms
         if len(rows) < top:
             rows.append(dict(op=op, ms_per_call=round(ms, 3), runs_per_call=count[op] / calls,
                              shape=shape, category=cat, jax_op=op_name))
@@ -86,17 +135,22 @@ def profile(name: str, mode: str, calls: int, top: int) -> dict:
                 wall_ms_per_call=1e3 * statistics.median(walls),
                 op_ms_per_call=round(sum(by_category.values()), 2),
                 by_category={k: round(v, 2) for k, v in by_category.most_common()},
+                by_stage={k: round(v, 2) for k, v in by_stage.most_common()},
                 top=rows)
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--workload", default="fluid-s1", choices=list(WORKLOADS))
+    p.add_argument("--workload", default="fluid-s1",
+                   help=f"one of {', '.join(WORKLOADS)}, or task:NAME[@RESOLUTION] (one env "
+                        "step of a task, e.g. task:whip_rope@reference)")
     p.add_argument("--mode", default="grad", choices=["fwd", "grad"])
     p.add_argument("--calls", type=int, default=3)
     p.add_argument("--top", type=int, default=25)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
+    if args.workload not in WORKLOADS and not args.workload.startswith("task:"):
+        p.error(f"unknown workload {args.workload!r}")
     write_report(profile(args.workload, args.mode, args.calls, args.top), args.out)
 
 

@@ -3,6 +3,7 @@
     python -m benchmarks.tables scores DIR [--tasks T1,T2] [--methods M1,M2]
                                            [--budget quick|full] [--include-stale]
     python -m benchmarks.tables throughput FILE
+    python -m benchmarks.tables self_collision FILE
     python -m benchmarks.tables check [README.md ...]
     python -m benchmarks.tables update [README.md ...]
 
@@ -13,6 +14,8 @@ tasks as columns, the standard-error convention and where the rows come from sta
 the table, stale rows (:mod:`dax_algos.bench.provenance`) left out unless
 ``--include-stale`` (then marked †). ``throughput``: the task throughput table that
 ``benchmarks.tasks.render_throughput_table`` renders from its JSON file.
+``self_collision``: what self-collision costs each cloth task and the cloth speed targets,
+from a ``benchmarks.cloth_self_collision`` result file (``render_table``).
 
 A README holds a generated table between two markers::
 
@@ -83,6 +86,9 @@ def _parser() -> argparse.ArgumentParser:
     t = sub.add_parser("throughput", help="the task throughput table of a benchmarks.tasks "
                                           "JSON file")
     t.add_argument("path")
+    c = sub.add_parser("self_collision", help="the cloth self-collision table of a "
+                                             "benchmarks.cloth_self_collision JSONL file")
+    c.add_argument("path")
     for name, what in (("check", "exit 1 if a README's generated block differs from what "
                                  "its command renders now"),
                        ("update", "rewrite every README's generated blocks")):
@@ -100,6 +106,10 @@ def render(argv) -> str:
                              args.include_stale)
     if args.kind == "throughput":
         return render_throughput(args.path)
+    if args.kind == "self_collision":
+        from benchmarks import cloth_self_collision
+
+        return cloth_self_collision.render_table(Path(args.path))
     raise ValueError(f"{args.kind} renders no table")
 
 
@@ -156,7 +166,7 @@ def update(path: Path) -> int:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    if args.kind in ("scores", "throughput"):
+    if args.kind in ("scores", "throughput", "self_collision"):
         try:
             print(render(argv if argv is not None else sys.argv[1:]), end="")
         except ValueError as err:

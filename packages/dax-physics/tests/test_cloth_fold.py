@@ -30,10 +30,11 @@ def _fold_setup(dtype=jnp.float32, n=N, size=L, friction=1.0, strain_limit=0.05)
 def test_fold_corner_onto_opposite_corner_gives_two_ordered_layers():
     """The corner is placed 0.15 L inside the opposite corner (at 0.1 L it lands 1 cm from
     the bottom layer's edge and slides off it after release), and the layers end a
-    thickness apart: with every contact found (the all-pairs search) the smallest gap is
-    0.95 h; the 8-slot hash, which drops vertices of the stack, let it sink to 0.75 h."""
+    thickness apart (with a search that dropped vertices of the stack, a spatial hash of 8
+    slots, the gap sank to 0.75 h). The neighbour list finds every contact: its overflow
+    stays 0."""
     cfg, cl, st = _fold_setup()
-    assert c.self_search_mode(cfg, cl.rest_pos.shape[0]) == "all"
+    st = c.with_neighbours(cfg, cl, st)
     sc = c.PickPlace(approach_steps=100, lift_steps=1000, move_steps=2500, lower_steps=1000,
                      settle_steps=2500, lift_height=0.08, radius=0.5 * SP)
     place = jnp.array([0.85 * L, 0.85 * L, H])
@@ -51,6 +52,9 @@ def test_fold_corner_onto_opposite_corner_gives_two_ordered_layers():
     assert gap.min() >= 0.85 * H, f"expected the folded layer >= 0.85 h = {0.85 * H:.4f} m " \
                                   f"above the bottom layer, got min gap {gap.min():.4f} m"
     assert bot[:, 2].min() >= 0.0, f"expected no vertex below the table, got {bot[:, 2].min()}"
+    overflow = int(out.neighbours.overflow)
+    assert overflow == 0, f"expected a neighbour list that missed nothing, got {overflow}"
+    assert int(out.neighbours.builds) > 1, "expected the list rebuilt as the cloth moved"
 
 
 def _grad_setup():

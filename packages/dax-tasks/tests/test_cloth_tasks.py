@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import dax_physics.cloth as dc
 import dax_tasks
 from conftest import Jitted
 from dax_tasks.tasks import _cloth
@@ -240,3 +241,60 @@ def test_unfold_cloth3_starts_with_three_separated_layers():
     gaps = _cloth.layer_gaps(x, faces, _cloth.flat_vertices(scene), 3.01 * scene.mesh_spacing)
     apart = float(np.mean(gaps > h / 3))
     assert apart >= 0.85, f"only {apart:.0%} of {len(gaps)} overlaps are h/3 apart"
+
+
+def _pairs_within_h(x, rest, h, exclude):
+    """float64 all-pairs reference: the vertex pairs ``i < j`` closer than h whose rest
+    distance exceeds ``exclude * h``."""
+    x, rest = np.asarray(x, np.float64), np.asarray(rest, np.float64)
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    far = np.linalg.norm(rest[:, None] - rest[None], axis=-1) > exclude * h
+    return set(zip(*(a.tolist() for a in np.nonzero(np.triu((d < h) & far, 1))), strict=True))
+
+
+def _listed_within_h(nbrs, x, h):
+    p = np.asarray(nbrs.pairs)[:, :int(nbrs.count)]
+    x = np.asarray(x, np.float64)
+    return {(i, j) for i, j in zip(p[0].tolist(), p[1].tolist(), strict=True)
+            if np.linalg.norm(x[i] - x[j]) < h}
+
+
+def test_unfold_cloth3_neighbour_list_finds_every_contact_all_pairs_finds():
+    """The cloth state's neighbour list holds exactly the pairs within h that all pairs
+    finds, with no overflow: on Unfold-Cloth-3's three-layer start and after each of 10
+    steps of its expert (the list brought up to date with the positions, as the next
+    substep does)."""
+    task = make("unfold_cloth3")
+    env = task.env
+    cfg, cloth = env.cfg, env.base_cloth
+    h, rest = cfg.thickness, np.asarray(cloth.rest_pos)
+    update = jax.jit(lambda s: dc.update_neighbours(cfg, cloth, s.neighbours, s.x))
+    _, state = task.reset(jax.random.PRNGKey(0))
+    counts = []
+    for t in range(11):
+        physics = state.physics
+        nbrs = update(physics)
+        want = _pairs_within_h(physics.x, rest, h, cfg.self_exclude)
+        got = _listed_within_h(nbrs, physics.x, h)
+        assert got == want, (f"step {t}: {len(want)} pairs within h, the list misses "
+                             f"{len(want - got)} and adds {len(got - want)}")
+        assert int(nbrs.overflow) == 0, f"step {t}: overflow {int(nbrs.overflow)}"
+        counts.append(len(want))
+        if t < 10:
+            _, state, *_ = task.step(state, task.expert_action(state))
+    assert counts[0] > 50, f"expected the three-layer start in contact, got {counts[0]} pairs"
+    assert int(state.physics.neighbours.builds) > 10, "expected the list rebuilt as it moved"
+
+
+def test_neighbour_list_overflow_is_reported_in_the_state():
+    """A list with too few slots for the folded start reports its overflow in the cloth
+    state (and :func:`dax_physics.cloth.self_collision_overflow`); the default has none."""
+    spec = dax_tasks.get_spec("unfold_cloth3")
+    for capacity, overflows in ((0.5, True), (spec.scene.self_capacity, False)):
+        task = make("unfold_cloth3", horizon=1,
+                    scene=dataclasses.replace(spec.scene, self_capacity=capacity))
+        _, state = task.reset(jax.random.PRNGKey(0))
+        _, state, *_ = task.step(state, task.expert_action(state))
+        got = int(dc.self_collision_overflow(task.env.cfg, task.env.base_cloth, state.physics))
+        assert got == int(state.physics.neighbours.overflow)
+        assert (got > 0) == overflows, f"self_capacity {capacity}: overflow {got}"

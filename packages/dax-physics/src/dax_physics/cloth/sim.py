@@ -35,15 +35,12 @@ from .._fusion import materialise
 from .._pytree import pytree_dataclass, static_field
 from ..scan import checkpointed_scan
 from . import mesh as _mesh
+from . import selfcollision as _sc
+from .selfcollision import SELF_SEARCHES, NeighbourList
 
 _TINY = 1e-20
 #: Table friction laws (:attr:`ClothConfig.friction_model`).
 FRICTION_MODELS = ("coulomb", "smooth")
-SELF_SEARCHES = ("auto", "all", "hash")
-#: Largest mesh for which ``self_search="auto"`` tests all vertex pairs: all pairs stays
-#: exact however many layers stack (the hash drops the vertices of crowded cells), and its
-#: V^2 pair tests stay affordable up to about this size.
-ALL_PAIRS_MAX = 1024
 
 
 # ----------------------------------------------------------------------------- static config
@@ -67,14 +64,18 @@ class ClothConfig:
     self_damping: normal damping [N s/m] of an approaching pair closer than h.
     self_friction: tangential (viscous) friction [N s/m] between a pair closer than h: a
         force ``-self_friction * v_t,rel`` that keeps stacked layers from sliding apart.
-    self_search: how contact pairs are found: ``"all"`` tests every vertex pair (V^2 pair
-        tests, exact, dense arithmetic with no gathers); ``"hash"`` a spatial hash (8 K V
-        pair tests for K ``self_candidates``; a hash cell holding more than K vertices,
-        e.g. a stack of folded layers, drops the extra ones and their contacts are missed,
-        see :func:`self_collision_overflow`); ``"auto"`` (default): ``"all"`` for meshes of
-        up to :data:`ALL_PAIRS_MAX` vertices, else ``"hash"``.
-    self_candidates: vertices examined per neighbour hash cell (static shape of the spatial
-        hash; a cell holding more vertices than this misses the extra ones).
+    self_search: how contact pairs are found (:mod:`dax_physics.cloth.selfcollision`):
+        ``"list"`` (default) a Verlet neighbour list with a skin, kept in the state and
+        rebuilt when a vertex has moved more than half the skin: a substep costs the
+        listed pairs, exact while the list's overflow is 0; ``"all"`` every vertex pair
+        (V^2 pair tests per substep, exact, no list).
+    self_skin: the list's skin [m] (pairs closer than ``h + self_skin`` are listed);
+        ``None``: h / 2.
+    self_capacity: pair slots of the list per vertex [-] (static; the list holds
+        ``self_capacity * V`` pairs, rounded up to a multiple of 8; more are counted as
+        overflow).
+    self_candidates: vertices the list's cell search examines per neighbouring cell
+        (static; a crowded cell's extra vertices are counted as overflow).
     self_exclude: pairs whose rest distance is below ``self_exclude * h`` never repel (mesh
         neighbours).
     strain_limit: maximum relative stretch of structural springs (e.g. 0.1 = 10 %), enforced
@@ -94,8 +95,10 @@ class ClothConfig:
     self_stiffness: float = 200.0
     self_damping: float = 0.0
     self_friction: float = 0.0
-    self_search: str = "auto"
-    self_candidates: int = 8
+    self_search: str = "list"
+    self_skin: float | None = None
+    self_capacity: float = 4.0
+    self_candidates: int = 16
     self_exclude: float = 2.0
     strain_limit: float | None = None
     strain_iterations: int = 4
@@ -116,6 +119,10 @@ class ClothConfig:
             raise ValueError(f"thickness must be >= 0 m, got {self.thickness}")
         if self.self_candidates < 1:
             raise ValueError(f"self_candidates must be >= 1, got {self.self_candidates}")
+        if not self.self_capacity > 0:
+            raise ValueError(f"self_capacity must be > 0, got {self.self_capacity}")
+        if self.self_skin is not None and not self.self_skin > 0:
+            raise ValueError(f"self_skin must be > 0 m or None, got {self.self_skin}")
         if self.self_search not in SELF_SEARCHES:
             raise ValueError(f"unknown self_search {self.self_search!r}; valid: "
                              f"{', '.join(SELF_SEARCHES)}")
@@ -308,6 +315,9 @@ class ClothState:
         attached vertices move with their gripper's velocity.
     colliders: :class:`dax_physics.colliders.ColliderState` of ``cfg.colliders``.
     t: simulated time [s].
+    neighbours: the self-collision's :class:`NeighbourList` (valid for the positions it
+        was last checked at; :func:`step` checks it first), or ``None`` (see
+        :func:`with_neighbours`).
     """
 
     x: jnp.ndarray
@@ -317,20 +327,24 @@ class ClothState:
     gripper_vel: jnp.ndarray
     colliders: _col.ColliderState
     t: jnp.ndarray
+    neighbours: NeighbourList | None = None
 
     @staticmethod
     def create(cloth: Cloth, x=None, v=None, n_grippers: int = 1,
-               colliders: _col.ColliderState | None = None) -> ClothState:
-        """Rest state (``x = cloth.rest_pos`` unless given), grippers at the origin."""
+               colliders: _col.ColliderState | None = None,
+               cfg: ClothConfig | None = None) -> ClothState:
+        """Rest state (``x = cloth.rest_pos`` unless given), grippers at the origin; with
+        ``cfg``, the neighbour list it uses (:func:`with_neighbours`)."""
         dtype = cloth.mass.dtype
         x = cloth.rest_pos if x is None else jnp.asarray(x, dtype)
         v = jnp.zeros_like(x) if v is None else jnp.asarray(v, dtype)
         V = x.shape[0]
         cs = _col.ColliderState.empty(dtype) if colliders is None else colliders
-        return ClothState(x=x, v=v, grip=jnp.zeros((n_grippers, V), dtype),
-                          gripper_pos=jnp.zeros((n_grippers, 3), dtype),
-                          gripper_vel=jnp.zeros((n_grippers, 3), dtype), colliders=cs,
-                          t=jnp.zeros((), dtype))
+        state = ClothState(x=x, v=v, grip=jnp.zeros((n_grippers, V), dtype),
+                           gripper_pos=jnp.zeros((n_grippers, 3), dtype),
+                           gripper_vel=jnp.zeros((n_grippers, 3), dtype), colliders=cs,
+                           t=jnp.zeros((), dtype))
+        return state if cfg is None else with_neighbours(cfg, cloth, state)
 
 
 # ----------------------------------------------------------------------------- stability
@@ -431,28 +445,41 @@ def _stencil_spring_forces(cloth: Cloth, xt, vt):
                         cloth.rest_length, cloth.damping, xt, vt)
 
 
-def _shifted(a, o: int):
-    """``a`` (3, V) read at index ``i + o`` for every i, zero outside (a static slice)."""
-    V = a.shape[-1]
-    w = abs(o)
-    return jnp.pad(a, ((0, 0), (w, w)))[:, w + o:w + o + V]
+def _shifted(ap, o: int, w: int, V: int):
+    """``a`` (3, V) read at index ``i + o`` for every i, zero outside: a static slice of
+    ``ap``, ``a`` padded by ``w >= |o|`` zeros on both sides."""
+    return ap[:, w + o:w + o + V]
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _stencil_sum(offsets, table, pairs, k, L, c, xt, vt):
     """``f_i = sum_s (k (ln - L) + c dv.u) u`` with ``d = x_{i + o_s} - x_i``, ``u = d / ln``,
     over the stencil slots (``offsets`` a static tuple, ``table`` (S, V) the slots' springs,
-    E for none; k, L, c (E,) per spring)."""
+    E for none; k, L, c (E,) per spring).
+
+    Two loops: the slots' scalar factors ``s`` (S, V) first, each element computing its
+    own square root and division, then the sum ``f = sum_s s d``, which recomputes the
+    differences d (cheap). In one loop XLA would not repeat a slot's square root for each
+    of the three components of f and gives every slot's length and inverse a loop of its
+    own. The positions and velocities are padded once, by the largest offset: every slot
+    reads a slice of the same padded arrays, which XLA fuses (a pad per slot is a copy per
+    slot)."""
     zero = jnp.zeros((1,), k.dtype)
     ks, Ls, cs = (jnp.concatenate([a, zero])[table] for a in (k, L, c))  # E: k = c = L = 0
-    f = jnp.zeros_like(xt)
+    V = xt.shape[1]
+    w = max(abs(o) for o in offsets)
+    xp, vp = (jnp.pad(a, ((0, 0), (w, w))) for a in (xt, vt))
+    ds = [_shifted(xp, o, w, V) - xt for o in offsets]
+    factors = []
     for slot, o in enumerate(offsets):
-        d, dv = _shifted(xt, o) - xt, _shifted(vt, o) - vt
+        d, dv = ds[slot], _shifted(vp, o, w, V) - vt
         ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _TINY)
         inv = 1.0 / ln
-        s = (ks[slot] * (ln - Ls[slot])
-             + cs[slot] * (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv) * inv
-        f = f + s[None] * d
+        factors.append((ks[slot] * (ln - Ls[slot])
+                        + cs[slot] * (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv) * inv)
+    s = materialise(jnp.stack(factors))
+    f = jnp.stack([sum(s[slot] * ds[slot][q] for slot in range(len(offsets)))
+                   for q in range(3)])
     return materialise(f)
 
 
@@ -504,115 +531,44 @@ def _spring_forces_cm(cloth: Cloth, xt, vt):
     return f
 
 
-def _hash_cells(c):
-    c = c.astype(jnp.int32)
-    h = (c[..., 0] * jnp.int32(73856093)) ^ (c[..., 1] * jnp.int32(19349663)) ^ (
-        c[..., 2] * jnp.int32(83492791))
-    return h & jnp.int32(0x7FFFFFFF)
+def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v, neighbours=None):
+    """Vertex-vertex repulsion [N] (V, 3) at thickness h: ``k (h - d)`` along the pair
+    direction (plus ``self_damping`` on the approaching normal speed and ``self_friction``
+    on the relative velocity) for pairs closer than h whose rest distance exceeds
+    ``self_exclude * h``. The pairs are every pair (``self_search="all"``) or those of the
+    neighbour list ``neighbours`` (:class:`NeighbourList`; one built at ``x`` when
+    ``None``); the forces are the same wherever the list's overflow is 0 (see
+    :mod:`dax_physics.cloth.selfcollision`)."""
+    return _sc.forces_cm(cfg, cloth, x.T, v.T, neighbours).T
 
 
-def _hash_buckets(cfg: ClothConfig, x):
-    """The spatial hash's pieces: the table size ``T``, each vertex's cell, the side of its
-    cell it is nearest to, and, in bucket order, the vertex ``order``, its bucket ``sb``
-    and its ``rank`` within that bucket (a rank >= ``self_candidates`` does not fit)."""
-    V = x.shape[0]
-    T = 1 << max(int(2 * V - 1).bit_length(), 4)
-    g = x / (2.0 * cfg.thickness)
-    cell = jnp.floor(g)
-    side = jnp.where(g - cell < 0.5, -1.0, 1.0)
-    bucket = _hash_cells(cell) & jnp.int32(T - 1)
-    order = jnp.argsort(bucket)
-    sb = bucket[order]
-    pos = jnp.arange(V, dtype=jnp.int32)
-    first = jnp.concatenate([jnp.ones((1,), bool), sb[1:] != sb[:-1]])
-    run_start = jax.lax.cummax(jnp.where(first, pos, 0))
-    return T, cell, side, order, sb, pos - run_start
-
-
-def self_collision_candidates(cfg: ClothConfig, x):
-    """Candidate neighbours of every vertex from a spatial hash with static shapes.
-
-    Cells have size 2h, so a vertex's h-ball overlaps at most the 2x2x2 block of cells on
-    the side of its own cell it is nearest to. Vertices are bucketed by cell hash into a
-    table of ``T`` buckets (``T`` the power of two >= 2V) of ``self_candidates`` slots each
-    (built with one sort and one scatter; a bucket that overflows drops its extra
-    vertices: :func:`self_collision_overflow` counts them), and each vertex reads the 8
-    buckets of its cell block: gathers only.
-    Returns ``(idx (V, 8 K) int32, valid (V, 8 K) bool)``; no gradient flows through it.
-    """
-    x = jax.lax.stop_gradient(x)
-    V = x.shape[0]
-    K = cfg.self_candidates
-    T, cell, side, order, sb, rank = _hash_buckets(cfg, x)
-    table = jnp.full((T, K), -1, jnp.int32)
-    table = table.at[sb, rank].set(order.astype(jnp.int32), mode="drop")
-    offs = jnp.asarray([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)], x.dtype)
-    ncell = cell[:, None, :] + offs[None] * side[:, None, :]  # (V, 8, 3)
-    nb = _hash_cells(ncell) & jnp.int32(T - 1)
-    idx = table[nb].reshape(V, 8 * K)
-    return jnp.maximum(idx, 0), idx >= 0
-
-
-def self_search_mode(cfg: ClothConfig, n_vertices: int) -> str:
-    """The pair search ``"all"`` or ``"hash"`` that ``cfg.self_search`` resolves to for a
-    mesh of ``n_vertices`` vertices."""
-    if cfg.self_search == "auto":
-        return "all" if n_vertices <= ALL_PAIRS_MAX else "hash"
-    return cfg.self_search
-
-
-def self_collision_overflow(cfg: ClothConfig, x):
-    """How many vertices the self-collision search drops at positions ``x`` (V, 3): with the
-    hash, those past the ``self_candidates`` slots of their bucket (a cell of side 2h
-    holding more vertices than that, e.g. a stack of many layers, or cells that share a
-    bucket); with the all-pairs search none. A dropped vertex is no other vertex's
-    candidate, so its contacts are missed; a non-zero count asks for a larger
-    ``self_candidates`` or ``self_search="all"``. int32 scalar, jit-able."""
-    if self_search_mode(cfg, x.shape[0]) == "all":
+def self_collision_overflow(cfg: ClothConfig, cloth: Cloth, state: ClothState):
+    """How many contacts the self-collision search may have missed (int32 scalar,
+    jit-able): with a neighbour list in ``state``, its ``overflow`` (the most any of its
+    builds could not see: pairs beyond the list's slots and unexamined candidates of
+    crowded cells); without one, the overflow of a list built at ``state.x``; 0 with the
+    all-pairs search. A non-zero count asks for a larger ``self_capacity`` or
+    ``self_candidates``."""
+    if cfg.self_search == "all" or not cfg.thickness > 0:
         return jnp.zeros((), jnp.int32)
-    rank = _hash_buckets(cfg, jax.lax.stop_gradient(x))[-1]
-    return jnp.sum(rank >= cfg.self_candidates, dtype=jnp.int32)
+    nbrs = state.neighbours
+    if nbrs is None:
+        nbrs = _sc.neighbour_list(cfg, cloth, state.x)
+    return nbrs.overflow
 
 
-def self_collision_forces(cfg: ClothConfig, cloth: Cloth, x, v):
-    """Vertex-vertex repulsion [N] at thickness h: ``k (h - d)`` along the pair direction
-    (plus ``self_damping`` on the approaching normal speed and ``self_friction`` on the
-    relative velocity) for pairs closer than h whose rest distance exceeds
-    ``self_exclude * h``. The pairs come from the search ``cfg.self_search`` picks
-    (:func:`self_search_mode`): every pair as dense (V, V) arrays, or the hash's (V, 8 K)
-    candidates; the forces are the same wherever the hash drops nothing."""
-    h = cfg.thickness
-    V = x.shape[0]
-    # component-wise arrays: XLA:CPU vectorises gathers of contiguous 1-D components,
-    # not of (.., 3) rows
-    xt, rt = x.T, cloth.rest_pos.T
-    if self_search_mode(cfg, V) == "all":
-        def other(a):
-            return a[None, :]
-        valid = ~jnp.eye(V, dtype=bool)
-    else:
-        idx, valid = self_collision_candidates(cfg, x)
-        valid = valid & (idx != jnp.arange(V)[:, None])
+def _uses_list(cfg: ClothConfig) -> bool:
+    return cfg.thickness > 0 and cfg.self_search == "list"
 
-        def other(a):
-            return a[idx]
-    d = [xt[c][:, None] - other(xt[c]) for c in range(3)]  # from neighbour to me
-    r2 = sum((rt[c][:, None] - other(rt[c])) ** 2 for c in range(3))
-    dist = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _TINY)
-    active = valid & (r2 > (cfg.self_exclude * h) ** 2) & (dist < h)
-    mag = jnp.where(active, cfg.self_stiffness * (h - dist), 0.0)
-    inv = 1.0 / dist
-    s = mag * inv
-    if cfg.self_damping > 0 or cfg.self_friction > 0:
-        vt = v.T
-        dv = [vt[c][:, None] - other(vt[c]) for c in range(3)]
-        vn = (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv
-        s = s - jnp.where(active, (cfg.self_damping * jnp.minimum(vn, 0.0)
-                                   - cfg.self_friction * vn) * inv, 0.0)
-        if cfg.self_friction > 0:  # tangential part: -self_friction * (dv - vn n)
-            fr = jnp.where(active, cfg.self_friction, 0.0)
-            return jnp.stack([jnp.sum(s * d[c] - fr * dv[c], axis=1) for c in range(3)], 1)
-    return jnp.stack([jnp.sum(s * d[c], axis=1) for c in range(3)], axis=1)
+
+def with_neighbours(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
+    """``state`` with a new neighbour list built at ``state.x`` when ``cfg`` uses one
+    (self-collision on, ``self_search="list"``), else with none. A state that carries its
+    list keeps it from substep to substep (:func:`step` rebuilds it only when a vertex
+    has moved more than half the skin); one without has a list built on every call of
+    :func:`step` (and once per :func:`rollout`)."""
+    nbrs = _sc.neighbour_list(cfg, cloth, state.x) if _uses_list(cfg) else None
+    return state.replace(neighbours=nbrs)
 
 
 # ----------------------------------------------------------------------------- substep
@@ -683,23 +639,40 @@ def _table_contact(cfg: ClothConfig, xt, vt, free, friction=None):
 def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
     """One semi-implicit Euler substep of ``cfg.dt`` seconds.
 
-    Order: spring, dashpot, gravity, drag and self-collision forces -> velocity; SDF
-    colliders (velocity projection); attached vertices take their gripper's velocity; table
-    contact with Coulomb friction (position clamp, approaching normal velocity removed;
-    the coefficients are ``cloth.table_friction`` when set); position update; strain
-    limiting; grippers and colliders advance.
+    Order: the self-collision's neighbour list (``self_search="list"``) is brought up to
+    date with the positions (:func:`dax_physics.cloth.selfcollision.update_neighbours`; a
+    state without one gets one for this substep only); spring, dashpot, gravity, drag and
+    self-collision forces -> velocity; SDF colliders (velocity projection); attached
+    vertices take their gripper's velocity; table contact with Coulomb friction (position
+    clamp, approaching normal velocity removed; the coefficients are
+    ``cloth.table_friction`` when set); position update; strain limiting; grippers and
+    colliders advance.
 
-    Computed on component-major (3, V) copies of the positions and velocities (the
-    layout of the stencil sum, :func:`spring_forces`).
+    Computed on component-major (3, V) positions and velocities (the layout of the
+    stencil sum, :func:`spring_forces`; :func:`rollout` keeps its scan in that layout).
     """
-    xt, vt = state.x.T, state.v.T
+    return _transposed(_step_cm(cfg, cloth, _transposed(state)))
+
+
+def _transposed(state: ClothState) -> ClothState:
+    """``state`` with its positions and velocities transposed, (V, 3) <-> (3, V)."""
+    return state.replace(x=state.x.T, v=state.v.T)
+
+
+def _step_cm(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
+    """:func:`step` on a state whose ``x`` and ``v`` are component-major (3, V)."""
+    xt, vt = state.x, state.v
     dt = cfg.dt
     m = cloth.mass
+    nbrs = state.neighbours
+    if _uses_list(cfg):
+        nbrs = (_sc.neighbour_list(cfg, cloth, xt.T) if nbrs is None
+                else _sc.update_neighbours(cfg, cloth, nbrs, xt.T))
     f = _spring_forces_cm(cloth, xt, vt) + m * jnp.asarray(cfg.gravity, xt.dtype)[:, None]
     if cfg.air_drag > 0:
         f = f - cfg.air_drag * cloth.area * vt
     if cfg.thickness > 0:
-        f = f + self_collision_forces(cfg, cloth, xt.T, vt.T).T
+        f = f + _sc.forces_cm(cfg, cloth, xt, vt, nbrs)
     vt = vt + dt * f / m
     if cfg.colliders:
         vt = _col.apply_colliders(cfg.colliders, state.colliders, xt.T, vt.T).T
@@ -719,8 +692,9 @@ def step(cfg: ClothConfig, cloth: Cloth, state: ClothState) -> ClothState:
         vt = vt + (x_lim - x_new) / dt
         x_new = x_lim
     cs = _col.advance(state.colliders, dt) if cfg.colliders else state.colliders
-    return state.replace(x=x_new.T, v=vt.T, gripper_pos=state.gripper_pos + dt * state.gripper_vel,
-                         colliders=cs, t=state.t + dt)
+    keep = nbrs if state.neighbours is not None else None
+    return state.replace(x=x_new, v=vt, gripper_pos=state.gripper_pos + dt * state.gripper_vel,
+                         colliders=cs, t=state.t + dt, neighbours=keep)
 
 
 def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, *,
@@ -736,7 +710,9 @@ def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, 
     gripper_vel: optional (n_substeps, G, 3) [m/s] gripper velocity command per substep
         (otherwise ``state.gripper_vel`` is held).
     A negative or non-integer ``n_substeps`` raises ``ValueError`` (0 returns ``state``).
-    The time step is checked by :func:`check_params`, not here.
+    The time step is checked by :func:`check_params`, not here. A state without a
+    neighbour list (when ``cfg`` uses one) gets one for the rollout and is returned
+    without; the scan carries the positions and velocities component-major.
     """
     n_substeps = step_count(n_substeps, "n_substeps")
     if n_substeps == 0:
@@ -750,10 +726,13 @@ def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, 
     def body(s, gv):
         if gv is not None:
             s = s.replace(gripper_vel=gv)
-        return step(cfg, cloth, s), None
+        return _step_cm(cfg, cloth, s), None
 
-    return checkpointed_scan(body, state, gripper_vel, length=n_substeps, segment=segment,
-                             unroll=unroll)[0]
+    lend = _uses_list(cfg) and state.neighbours is None
+    carry = _transposed(with_neighbours(cfg, cloth, state) if lend else state)
+    out = _transposed(checkpointed_scan(body, carry, gripper_vel, length=n_substeps,
+                                        segment=segment, unroll=unroll)[0])
+    return out.replace(neighbours=None) if lend else out
 
 
 def energy(cfg: ClothConfig, cloth: Cloth, state: ClothState):

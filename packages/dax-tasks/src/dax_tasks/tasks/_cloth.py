@@ -52,16 +52,19 @@ class ClothScene:
         limit; 0 with ``rotation_range`` 0: the unrandomised start).
     thickness [m]: self-collision thickness h (vertex pairs closer than h repel, see
         :class:`dax_physics.cloth.ClothConfig`); 0 turns self-collision off.
-    self_stiffness [N/m], self_friction [N s/m], self_search, self_candidates: the
-        self-collision's repulsion stiffness, tangential friction, pair search and
-        spatial-hash slots (ClothConfig). The default search, ``"auto"``, tests every vertex
-        pair on meshes of up to ``dax_physics.cloth.ALL_PAIRS_MAX`` vertices (every task's
-        default mesh and the square cloths' 529-vertex reference), so no contact is dropped
-        however many layers stack; the hash and its slots are used only above that size
-        (the T-shirt's 3584-vertex reference, a timing reference).
+    self_stiffness [N/m], self_friction [N s/m], self_search, self_skin [m],
+        self_capacity, self_candidates: the self-collision's repulsion stiffness,
+        tangential friction, pair search and neighbour-list sizes
+        (:class:`dax_physics.cloth.ClothConfig`). The default search, ``"list"``, keeps a
+        Verlet neighbour list in the cloth state (``physics.neighbours``) and finds every
+        pair all-pairs finds while its ``overflow`` is 0; ``"all"`` tests every pair.
     friction_model: the table friction law, ``"coulomb"`` (default: stick-slip) or
         ``"smooth"`` (a regularised law whose rollouts are smooth in the actions, for
         gradient-based planners; see :class:`dax_physics.cloth.ClothConfig`).
+    segment: substeps per checkpointed segment of a pick-and-place's two scans
+        (:func:`dax_physics.checkpointed_scan`): the reverse pass keeps the state at each
+        segment's start and recomputes one segment at a time, so an action gradient's
+        memory grows with the segments, not the substeps.
     """
 
     shape: str = "square"
@@ -83,8 +86,11 @@ class ClothScene:
     self_stiffness: float = 0.5
     self_damping: float = 0.0
     self_friction: float = 0.0
-    self_search: str = "auto"
+    self_search: str = "list"
+    self_skin: float | None = None
+    self_capacity: float = 4.0
     self_candidates: int = 16
+    segment: int = 50
 
     def __post_init__(self):
         if self.shape not in ("square", "tshirt"):
@@ -104,6 +110,8 @@ class ClothScene:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.self_candidates < 1:
             raise ValueError(f"self_candidates must be >= 1, got {self.self_candidates}")
+        if self.segment < 1:
+            raise ValueError(f"segment must be >= 1 substep, got {self.segment}")
         if self.self_search not in dc.SELF_SEARCHES:
             raise ValueError(f"unknown self_search {self.self_search!r}; valid: "
                              f"{', '.join(dc.SELF_SEARCHES)}")
@@ -202,7 +210,8 @@ def cloth_config(scene: ClothScene) -> dc.ClothConfig:
                           self_stiffness=scene.self_stiffness,
                           self_damping=scene.self_damping,
                           self_friction=scene.self_friction,
-                          self_search=scene.self_search,
+                          self_search=scene.self_search, self_skin=scene.self_skin,
+                          self_capacity=scene.self_capacity,
                           self_candidates=scene.self_candidates)
 
 
@@ -253,8 +262,9 @@ def gripper_path(scene: ClothScene, start, place, n_move: int):
 def pick_place(scene: ClothScene, substeps: int, cloth: dc.Cloth, state: dc.ClothState,
                action, contact_adjustment: bool) -> dc.ClothState:
     """One pick-and-place action ``(x, y, z, x', y', z')`` [m] as ``substeps`` substeps of
-    ``cloth`` in two scans: grasp at the pick point, carry along
-    :func:`gripper_path` for ``substeps - settle_substeps`` substeps, release, settle."""
+    ``cloth`` in two checkpointed rollouts (segments of ``scene.segment`` substeps): grasp
+    at the pick point, carry along :func:`gripper_path` for ``substeps - settle_substeps``
+    substeps, release, settle."""
     n_settle = scene.settle_substeps
     n_move = substeps - n_settle
     if n_move < 1:
@@ -268,17 +278,14 @@ def pick_place(scene: ClothScene, substeps: int, cloth: dc.Cloth, state: dc.Clot
     state = state.replace(grip=grip[None], gripper_pos=start[None],
                           gripper_vel=jnp.zeros_like(state.gripper_vel))
 
-    def carry(s, v):
-        return dc.step(cfg, cloth, s.replace(gripper_vel=v[None])), None
-
-    # two scans: the grip is fixed in each, so the solver's grip arithmetic is hoisted out
-    # of the loop (a per-substep grip mask would keep it inside)
-    state, _ = jax.lax.scan(carry, state, vel)
+    # two rollouts: the grip is fixed in each, so the solver's grip arithmetic is hoisted
+    # out of the loop (a per-substep grip mask would keep it inside)
+    state = dc.rollout(cfg, cloth, state, n_move, segment=scene.segment,
+                       gripper_vel=vel[:, None, :])
     state = state.replace(grip=jnp.zeros_like(state.grip),
                           gripper_vel=jnp.zeros_like(state.gripper_vel))
     if n_settle:
-        state, _ = jax.lax.scan(lambda s, _: (dc.step(cfg, cloth, s), None), state, None,
-                                length=n_settle)
+        state = dc.rollout(cfg, cloth, state, n_settle, segment=scene.segment)
     return state
 
 
@@ -339,11 +346,11 @@ REST_TIME = 0.5
 
 
 def settle(scene: ClothScene, state: dc.ClothState, n: int) -> dc.ClothState:
-    """``n`` substeps with nothing held (one ``lax.scan``)."""
+    """``n`` substeps with nothing held (one rollout)."""
     cfg, cloth = cloth_config(scene), make_cloth(scene)
     state = state.replace(grip=jnp.zeros_like(state.grip),
                           gripper_vel=jnp.zeros_like(state.gripper_vel))
-    return jax.lax.scan(lambda s, _: (dc.step(cfg, cloth, s), None), state, None, length=n)[0]
+    return dc.rollout(cfg, cloth, state, n)
 
 
 @functools.lru_cache(maxsize=16)
@@ -374,7 +381,7 @@ def _run_folds(scene: ClothScene, substeps: int, plan) -> dc.ClothState:
     """The flat cloth at the target pose after the pick-and-places of ``plan`` (fold index,
     place point pairs), contact adjustment on, each jitted step run eagerly in turn."""
     cloth = make_cloth(scene)
-    state = dc.ClothState.create(cloth, n_grippers=1)
+    state = dc.ClothState.create(cloth, n_grippers=1, cfg=cloth_config(scene))
     step = jax.jit(lambda s, a: pick_place(scene, substeps, cloth, s, a, True))
     for index, place in plan:
         state = step(state, plan_action(state.x, index, place))

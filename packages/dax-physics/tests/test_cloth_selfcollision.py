@@ -1,0 +1,257 @@
+"""Cloth self-collision: the neighbour list finds the pairs all-pairs finds, counts what it
+cannot hold, is rebuilt when (and only when) a vertex has moved half the skin, batches
+like single runs, and gives the forces and gradients of the contact law."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import dax_physics.cloth as c
+from dax_physics.cloth import selfcollision as sc
+
+H = 0.03
+
+
+def _layer_stack(h=H, layers=8):
+    """``layers`` layers of a 4x4 grid of spacing h / 3, h * 7 / 30 apart: 16 * layers
+    vertices within about one h of each other (jittered by 1e-3 h, so that no distance
+    ties with a cutoff)."""
+    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), indexing="ij"), -1).reshape(-1, 2)
+    x = np.concatenate([np.c_[0.001 + h / 3 * g, np.full(16, 0.001 + 0.007 / 0.03 * h * k)]
+                        for k in range(layers)])
+    return x + 1e-3 * h * np.random.default_rng(7).uniform(-1, 1, x.shape)
+
+
+def _stack_cloth(h=H, layers=8):
+    """A cloth of 16 * layers vertices whose rest mesh puts every pair of the stack farther
+    apart than ``self_exclude * h``, so that every close pair of the stack may touch."""
+    n = 16 * layers
+    return c.square_cloth(n // 8, 8, size=(n // 8 * 2.5 * h, 8 * 2.5 * h))
+
+
+def _pairs_within(x, rest, r, h, exclude=2.0):
+    """float64 brute force: the pairs ``i < j`` closer than r whose rest distance exceeds
+    ``exclude * h``."""
+    x, rest = np.asarray(x, np.float64), np.asarray(rest, np.float64)
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    far = np.linalg.norm(rest[:, None] - rest[None], axis=-1) > exclude * h
+    return {(int(i), int(j)) for i, j in zip(*np.nonzero(np.triu((d < r) & far, 1)),
+                                             strict=True)}
+
+
+def _listed(nbrs):
+    p = np.asarray(nbrs.pairs)[:, :int(nbrs.count)]
+    return set(zip(p[0].tolist(), p[1].tolist(), strict=True))
+
+
+def _close(nbrs, x, h):
+    """The listed pairs closer than h at ``x``."""
+    x = np.asarray(x, np.float64)
+    return {(i, j) for i, j in _listed(nbrs) if np.linalg.norm(x[i] - x[j]) < h}
+
+
+@pytest.mark.parametrize("cells", [False, True])
+def test_list_holds_every_pair_within_the_cutoff(cells):
+    """On a cloud and on an 8-layer stack the build (all pairs, and the cell search) lists
+    exactly the brute force's pairs within h + skin, with no overflow."""
+    rng = np.random.default_rng(1)
+    cloud = rng.uniform(0.0, 0.15, size=(128, 3))
+    cl = _stack_cloth()
+    cfg = c.ClothConfig(thickness=H, self_capacity=64.0, self_candidates=128)
+    r = H + sc.skin(cfg)
+    build = jax.jit(sc._build, static_argnums=(0, 3))
+    for x in (cloud, _layer_stack()):
+        pairs, count, overflow = build(cfg, cl, jnp.asarray(x, jnp.float32), cells)
+        nbrs = sc.NeighbourList(pairs, count, jnp.asarray(x), overflow, jnp.int32(1))
+        want = _pairs_within(x, cl.rest_pos, r, H)
+        assert len(want) > 20, f"expected a scene with contacts, got {len(want)} pairs"
+        assert int(overflow) == 0, f"expected no overflow, got {int(overflow)}"
+        got = _listed(nbrs)
+        assert got == want, (f"expected the {len(want)} brute-force pairs, missing "
+                             f"{len(want - got)}, extra {len(got - want)}")
+
+
+def test_overflow_is_counted_and_is_what_loses_pairs():
+    """The 8-layer stack (nearly every one of its 8128 pairs within h + skin) has more
+    close pairs than 1 slot per vertex holds, and its cells hold more vertices than 8
+    candidates: both are counted, and only then do pairs go missing."""
+    x = jnp.asarray(_layer_stack(), jnp.float32)
+    cl = _stack_cloth()
+    want = _pairs_within(x, cl.rest_pos, H + 0.5 * H, H)
+    for kw, cells, lost in ((dict(self_capacity=1.0), False, True),
+                            (dict(self_capacity=64.0, self_candidates=8), True, True),
+                            (dict(self_capacity=64.0), False, False)):
+        cfg = c.ClothConfig(thickness=H, **kw)
+        pairs, count, overflow = jax.jit(sc._build, static_argnums=(0, 3))(cfg, cl, x, cells)
+        missing = len(want - _listed(sc.NeighbourList(pairs, count, x, overflow, 1)))
+        assert (int(overflow) > 0) == lost and (missing > 0) == lost, (
+            f"{kw}, cells={cells}: overflow {int(overflow)}, {missing} pairs missing")
+    cfg = c.ClothConfig(thickness=H, self_capacity=1.0)
+    st = c.ClothState.create(cl, x=x)
+    assert int(c.self_collision_overflow(cfg, cl, st)) > 0, "expected the overflow reported"
+    assert int(c.self_collision_overflow(dataclasses.replace(cfg, self_search="all"), cl,
+                                         st)) == 0, "expected no overflow with all pairs"
+
+
+def _brute_force_self_forces(x, v, rest, h, k, damping, friction, exclude):
+    """float64 reference of the documented contact law over every vertex pair."""
+    f = np.zeros_like(x)
+    for i in range(len(x)):
+        for j in range(len(x)):
+            dvec = x[i] - x[j]
+            d = np.linalg.norm(dvec)
+            if i == j or d >= h or np.linalg.norm(rest[i] - rest[j]) <= exclude * h:
+                continue
+            n = dvec / d
+            dv = v[i] - v[j]
+            vn = dv @ n
+            f[i] += k * (h - d) * n - damping * min(vn, 0.0) * n - friction * (dv - vn * n)
+    return f
+
+
+def test_list_and_all_pairs_give_the_contact_law():
+    """On the 8-layer stack both searches give the float64 brute-force forces of the
+    contact law, damping and friction included."""
+    k, damping, friction = 0.5, 1e-3, 2e-3
+    rng = np.random.default_rng(3)
+    x = _layer_stack()
+    v = rng.normal(0.0, 0.1, x.shape)
+    cl = _stack_cloth()
+    want = _brute_force_self_forces(x, v, np.asarray(cl.rest_pos, np.float64), H, k, damping,
+                                    friction, 2.0)
+    assert np.max(np.abs(want)) > 0, "the stack should be in contact"
+    for search in ("list", "all"):
+        cfg = c.ClothConfig(thickness=H, self_stiffness=k, self_damping=damping,
+                            self_friction=friction, self_search=search, self_capacity=64.0)
+        got = np.asarray(jax.jit(c.self_collision_forces, static_argnums=0)(
+            cfg, cl, jnp.asarray(x, jnp.float32), jnp.asarray(v, jnp.float32)))
+        err = np.max(np.abs(got - want)) / np.max(np.abs(want))
+        assert err < 1e-5, f"{search}: expected the brute-force forces, rel. error {err}"
+
+
+def _folded(n=8, size=0.2):
+    """A square cloth folded once along its diagonal, the folded half one h above."""
+    cl = c.square_cloth(n, size=(size, size), stretch=20.0, damping=0.01)
+    x = np.asarray(cl.rest_pos).copy()
+    upper = x[:, 0] + x[:, 1] > size
+    x[upper, :2] = size - x[upper, 1::-1]
+    x[upper, 2] = size / (n - 1)
+    return cl, jnp.asarray(x, jnp.float32), size / (n - 1)
+
+
+def test_list_is_rebuilt_after_half_the_skin_and_stays_exact_in_between():
+    """A vertex moved by 0.4 skin keeps the list (pairs within h still all listed); by 0.6
+    skin the list is rebuilt; along a rollout the listed pairs within h are those of all
+    pairs at every checked substep."""
+    cl, x, h = _folded()
+    cfg = c.ClothConfig(dt=2e-4, thickness=h, self_stiffness=5.0, self_friction=1e-3)
+    nbrs = sc.neighbour_list(cfg, cl, x)
+    update = jax.jit(sc.update_neighbours, static_argnums=0)
+    skin = sc.skin(cfg)
+    for frac, rebuilt in ((0.4, False), (0.6, True)):
+        moved = x.at[5].add(jnp.asarray([frac * skin, 0.0, 0.0]))
+        new = update(cfg, cl, nbrs, moved)
+        assert int(new.builds) == 1 + rebuilt, f"moved {frac} skin: builds {int(new.builds)}"
+        assert _close(new, moved, h) == _pairs_within(moved, cl.rest_pos, h, h)
+    st = c.ClothState.create(cl, x=x, cfg=cfg).replace(
+        v=jnp.zeros_like(x).at[:, 2].set(-0.5))
+    step = jax.jit(lambda s: c.rollout(cfg, cl, s, 25))
+    for _ in range(8):
+        st = step(st)
+        nbrs = update(cfg, cl, st.neighbours, st.x)
+        assert _close(nbrs, st.x, h) == _pairs_within(st.x, cl.rest_pos, h, h)
+    assert int(st.neighbours.builds) > 2, "expected the falling layer to force rebuilds"
+
+
+def test_batched_lists_equal_single_lists():
+    """Under vmap a member that needs no rebuild keeps its list while another rebuilds,
+    so each member's list (and state) is the one its single run has."""
+    cl, x, h = _folded()
+    cfg = c.ClothConfig(dt=2e-4, thickness=h, self_stiffness=5.0, gravity=(0.0, 0.0, 0.0))
+    still = c.ClothState.create(cl, cfg=cfg)  # flat at rest, no gravity: nothing moves
+    falling = c.ClothState.create(cl, x=x, v=jnp.zeros_like(x).at[:, 2].set(-2.0), cfg=cfg)
+    run = jax.jit(lambda s: c.rollout(cfg, cl, s, 40))
+    batch = jax.jit(jax.vmap(lambda s: c.rollout(cfg, cl, s, 40)))(
+        jax.tree.map(lambda a, b: jnp.stack([a, b]), still, falling))
+    for b, single in enumerate((run(still), run(falling))):
+        for name in ("builds", "count", "pairs"):
+            np.testing.assert_array_equal(getattr(batch.neighbours, name)[b],
+                                          getattr(single.neighbours, name), err_msg=name)
+        # positions: to float rounding (XLA fuses the batched substep differently)
+        np.testing.assert_allclose(batch.neighbours.x_ref[b], single.neighbours.x_ref,
+                                   rtol=0, atol=1e-6)
+    assert int(batch.neighbours.builds[0]) == 1 < int(batch.neighbours.builds[1])
+
+
+def test_force_gradient_with_the_list_held_matches_finite_differences():
+    """float64: d (w . f) / d (x, v) of the listed pairs' forces, the list held constant,
+    against central differences."""
+    with jax.enable_x64(True):
+        cl, x, h = _folded()
+        cl = jax.tree.map(lambda a: a.astype(jnp.float64) if a.dtype == jnp.float32 else a,
+                          cl)
+        x = x.astype(jnp.float64) + 0.2 * h * jax.random.normal(jax.random.PRNGKey(0), x.shape)
+        v = 0.1 * jax.random.normal(jax.random.PRNGKey(1), x.shape, jnp.float64)
+        cfg = c.ClothConfig(thickness=h, self_stiffness=5.0, self_damping=1e-3,
+                            self_friction=2e-3)
+        nbrs = sc.neighbour_list(cfg, cl, x)
+        w = jax.random.normal(jax.random.PRNGKey(2), x.shape, jnp.float64)
+
+        def loss(x, v):
+            return jnp.sum(w * c.self_collision_forces(cfg, cl, x, v, nbrs))
+        assert float(jnp.abs(c.self_collision_forces(cfg, cl, x, v, nbrs)).max()) > 0
+        gx, gv = jax.grad(loss, argnums=(0, 1))(x, v)
+        eps = 1e-7
+        rng = np.random.default_rng(0)
+        for _ in range(6):
+            i, k = int(rng.integers(len(x))), int(rng.integers(3))
+            for arg, g in ((0, gx), (1, gv)):
+                e = jnp.zeros_like(x).at[i, k].set(eps)
+                a = [x, v]
+                hi = loss(*[a[m] + e if m == arg else a[m] for m in range(2)])
+                lo = loss(*[a[m] - e if m == arg else a[m] for m in range(2)])
+                fd = float((hi - lo) / (2 * eps))
+                assert abs(float(g[i, k]) - fd) <= 1e-5 * max(1.0, abs(fd)), (
+                    f"d/d{'xv'[arg]}[{i},{k}]: FD {fd}, autodiff {float(g[i, k])}")
+
+
+def test_rollout_gradient_with_the_list_equals_all_pairs():
+    """The gradient of a falling folded cloth's final heights is the same with the list
+    (rebuilt along the way) as with all pairs: a rebuild changes which pairs are looked
+    at, not the forces."""
+    cl, x, h = _folded(6, 0.1)
+    cfg = c.ClothConfig(dt=2e-4, thickness=h, self_stiffness=5.0, self_friction=1e-3)
+
+    def loss(v0, search):
+        cf = dataclasses.replace(cfg, self_search=search)
+        st = c.ClothState.create(cl, x=x, v=jnp.zeros_like(x).at[:, 2].set(v0), cfg=cf)
+        return jnp.sum(c.rollout(cf, cl, st, 200, segment=50).x[:, 2] ** 2)
+    l1, g1 = jax.jit(jax.value_and_grad(lambda v: loss(v, "list")))(-0.5)
+    l2, g2 = jax.jit(jax.value_and_grad(lambda v: loss(v, "all")))(-0.5)
+    np.testing.assert_allclose(float(l1), float(l2), rtol=1e-5)
+    np.testing.assert_allclose(float(g1), float(g2), rtol=1e-4)
+    assert abs(float(g1)) > 0, "expected a non-zero gradient"
+
+
+def test_reverse_memory_grows_with_segments_not_substeps():
+    """XLA's temporaries of a rollout's gradient with self-collision: without segments
+    they grow with the substeps; checkpointed in segments of 20 they stay well below and
+    grow far less when the substeps double."""
+    cl, x, h = _folded(6, 0.1)
+    cfg = c.ClothConfig(dt=2e-4, thickness=h, self_stiffness=5.0, self_friction=1e-3)
+    st = c.ClothState.create(cl, x=x, cfg=cfg)
+
+    def temp(n, seg):
+        def loss(v0):
+            s = st.replace(v=jnp.zeros_like(x).at[:, 2].set(v0))
+            return jnp.sum(c.rollout(cfg, cl, s, n, segment=seg).x[:, 2] ** 2)
+        mem = jax.jit(jax.grad(loss)).lower(-0.5).compile().memory_analysis()
+        return mem.temp_size_in_bytes
+    plain = temp(400, None), temp(800, None)
+    seg = temp(400, 20), temp(800, 20)
+    assert plain[1] - plain[0] > 0.5 * plain[0], f"expected plain growth, got {plain}"
+    assert seg[1] < plain[0] / 4, f"expected checkpointed temporaries << plain: {seg}, {plain}"
+    assert seg[1] - seg[0] < (plain[1] - plain[0]) / 10, f"growth {seg} against {plain}"
