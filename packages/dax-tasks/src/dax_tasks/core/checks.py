@@ -29,8 +29,6 @@ import os
 import jax
 import numpy as np
 
-from .env import EnvParams
-
 #: The smallest substep [s] a scene may ask for: float32 coordinates of order 1 m are
 #: about 6e-8 m apart, so at 1e-6 s a point moving at 0.1 m/s still moves more than one
 #: spacing per substep; below it substeps lose motion to rounding, and the substep counts
@@ -90,14 +88,17 @@ def check_key(key, batch_size: int | None = None):
     return key
 
 
-def check_params(env, params: EnvParams) -> EnvParams:
-    """``ValueError`` naming the problem if ``params`` cannot drive ``env``: not an
-    :class:`EnvParams`, a goal of the wrong shape, a non-finite or non-positive λ, a
+def check_params(env, params):
+    """``ValueError`` naming the problem if ``params`` (an
+    :class:`~dax_tasks.core.env.EnvParams`) cannot drive ``env``: not of the class of
+    ``env.default_params``, a goal of the wrong shape, a non-finite or non-positive λ, a
     negative or non-finite auxiliary weight, or physics numbers the task refuses (for the
     MPM and cloth tasks: wrong shapes, NaN, non-positive densities or moduli, and any
     value that makes the substep unstable). Returns ``params``."""
     name = env.spec.name
-    if not isinstance(params, EnvParams):
+    # the class of the env's own params, so this module does not import the env module
+    # (which calls this one in its eager checks)
+    if not isinstance(params, type(env.default_params)):
         raise ValueError(f"{name}: params must be an EnvParams, got {type(params).__name__}")
     goal = np.asarray(params.goal)
     want = env.default_params.goal.shape
