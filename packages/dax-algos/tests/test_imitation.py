@@ -154,6 +154,46 @@ def test_ild_state_distance_weights_parts_as_documented():
         ild.ILDConfig(weighting="balanced")
 
 
+def test_planar_fit_recovers_a_rigid_motion_and_moves_the_whole_demonstration():
+    pts = jax.random.uniform(jax.random.PRNGKey(0), (30, 3), minval=-0.2, maxval=0.2)
+    angle, shift = 0.7, jnp.asarray([0.11, -0.05])
+    rot = jnp.asarray([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]],
+                      jnp.float32)
+    moved = pts.at[:, :2].set(pts[:, :2] @ rot.T + shift)
+    fit_rot, fit_shift = ild.planar_fit(pts, moved)
+    np.testing.assert_allclose(np.asarray(fit_rot), np.asarray(rot), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(fit_shift), np.asarray(shift), atol=1e-5)
+    # every step and the end effector move alike; heights stay
+    demo = ild.Demonstration(jnp.stack([pts, pts + 0.01]), jnp.zeros((2, 3)),
+                             jax.random.PRNGKey(0))
+    out = ild.move_demonstration(demo, fit_rot, fit_shift)
+    np.testing.assert_allclose(np.asarray(out.points[0]), np.asarray(moved), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(out.points[:, :, 2]), np.asarray(demo.points[:, :, 2]))
+    np.testing.assert_allclose(np.asarray(out.effector[0, :2]), np.asarray(shift), atol=1e-5)
+
+
+def test_ild_targets_are_the_demonstration_or_it_moved_onto_each_start():
+    env = toy.point_reach(horizon=4)
+    demo = _smooth_demo(env, jax.random.PRNGKey(7))
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    _, state = dax_tasks.VmapWrapper(env, 3).reset(keys, env.default_params)
+    none = ild.episode_targets(env, demo, state.physics, ild.ILDConfig())
+    np.testing.assert_array_equal(np.asarray(none.points),
+                                  np.broadcast_to(np.asarray(demo.points), (3, 5, 1, 3)))
+    start = ild.episode_targets(env, demo, state.physics, ild.ILDConfig(align="start"))
+    # one point: the fit is the shift in the table plane that puts the demonstration's
+    # start over each start (heights are not moved)
+    starts = np.asarray(jax.vmap(env.object_points)(state.physics))
+    np.testing.assert_allclose(np.asarray(start.points[:, 0, :, :2]), starts[..., :2],
+                               atol=1e-6)
+    offset = starts[:, 0, :2] - np.asarray(demo.points[0, 0, :2])
+    np.testing.assert_allclose(np.asarray(start.points[:, :, 0, :2]),
+                               np.asarray(demo.points[:, 0, :2])[None] + offset[:, None],
+                               atol=1e-6)
+    with pytest.raises(ValueError, match="unknown align"):
+        ild.ILDConfig(align="goal")
+
+
 # ----------------------------------------------------------------------------- files
 
 SMALL = cheap_cloth_overrides(horizon=2)

@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from dax_algos import learner, toy
+import dax_tasks
+from dax_algos import learner, mlp_policy, toy
 from dax_algos.rl import apg, ppo, shac, training
 
 CONFIGS = {
@@ -88,12 +89,30 @@ def test_training_reward_has_aux_and_evaluation_does_not(env):
     assert float(reward) == float(info["r_gt"])
 
 
+@pytest.mark.parametrize("objective", ["sum", "final"])
+def test_apg_objective_is_the_summed_reward_or_the_final_r_gt(env, objective):
+    config = apg.APGConfig(num_envs=2, policy_hidden=(8,), objective=objective)
+    venv = dax_tasks.training_env(env, 2)
+    pnet = apg.network(env, config)
+    rollout = apg.make_rollout(env, venv, pnet, config, env.horizon)
+    params = training.training_params(env.default_params, config.aux_weight)
+    obs, state = venv.reset(jax.random.PRNGKey(0), params)
+    norm = mlp_policy.ObsNorm.create(mlp_policy.feature_dim(env))
+    value, (_, _, _, reward, done, info) = rollout(
+        pnet.init(jax.random.PRNGKey(1)), norm, obs, state, jax.random.PRNGKey(2), params)
+    assert bool(jnp.all(done[-1])) and not bool(jnp.any(done[:-1]))
+    want = (jnp.mean(jnp.sum(reward, 0)) if objective == "sum"
+            else jnp.mean(info["r_gt"][-1]))  # the score: each env's final-step r_gt
+    assert float(value) == pytest.approx(float(want), rel=1e-6)
+
+
 @pytest.mark.parametrize("cls, kwargs, match", [
     (ppo.PPOConfig, dict(num_envs=0), "num_envs"),
     (ppo.PPOConfig, dict(num_envs=5, unroll_length=3, minibatches=4), "minibatches"),
     (ppo.PPOConfig, dict(discount=1.5), "discount"),
     (apg.APGConfig, dict(window=0), "window"),
     (apg.APGConfig, dict(policy_hidden=()), "policy_hidden"),
+    (apg.APGConfig, dict(objective="last"), "objective"),
     (shac.SHACConfig, dict(target_alpha=-0.1), "target_alpha"),
     (shac.SHACConfig, dict(actor_learning_rate=float("nan")), "actor_learning_rate"),
 ])

@@ -136,7 +136,7 @@ def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_override
         run = method.build(env, config)
         if isinstance(run, LearnerRunnable) and run.demos is not None:
             phase("demonstrations")
-        data = _demonstrations(env, run, demo_dir, task_overrides)
+        data = demonstrations(env, run, demo_dir, task_overrides)
         phase("compiling")
         t0 = time.perf_counter()
         compiled = jax.jit(run.episode).lower(jax.random.PRNGKey(0), params,
@@ -163,7 +163,7 @@ def run_method(env, t, m, seeds, budget, overrides, demo_dir=None, task_override
         yield result
 
 
-def _demonstrations(env, run: Runnable, demo_dir, task_overrides) -> tuple:
+def demonstrations(env, run: Runnable, demo_dir, task_overrides) -> tuple:
     """``()``, or ``(data,)`` for a learner that learns from demonstrations: their file
     made or reused (:func:`dax_algos.il.demos.locate`) and read."""
     if not isinstance(run, LearnerRunnable) or run.demos is None:

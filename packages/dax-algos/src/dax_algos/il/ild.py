@@ -21,7 +21,14 @@ Starts: ``starts="random"`` (default) draws each training episode's start from t
 own distribution (so the policy learns to follow the demonstration from where an
 evaluation episode starts); ``starts="demo"`` restarts every episode from the
 demonstration's own start (``reset(PRNGKey(seed))``, the file's seed), the setting in which
-reproducing the demonstration exactly is possible. ``window`` truncates backpropagation as
+reproducing the demonstration exactly is possible. Alignment: ``align="none"`` (default)
+tracks the demonstration's absolute states; ``align="start"`` first moves the whole
+demonstration (object points and end effector, every step) by the rigid motion in the table
+plane (a rotation about the vertical and a shift) that best maps its start's object points
+onto the episode's start's (least squares, :func:`planar_fit`), as the cloth tasks' distance
+aligns the goal to the cloth: from a start elsewhere on the table, or turned, the target is
+the demonstrated motion where the object is, not where the demonstration's object was.
+``window`` truncates backpropagation as
 in APG (``None``: the whole episode); each update is one episode per env, in
 ``ceil(H / window)`` gradient steps, the state carried between them ``stop_gradient``-ed.
 Non-finite gradients are counted and their step skipped, as in the RL methods.
@@ -48,6 +55,7 @@ from ..optim import guarded_update, make_optimiser
 from . import demos
 
 WEIGHTINGS = ("per_part", "flat")
+ALIGNS = ("none", "start")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +63,7 @@ class ILDConfig:
     """total_env_steps: training budget (``num_envs * horizon`` per update); window:
     backpropagation horizon in env steps (``None``: the episode); weighting,
     object_weight, effector_weight: the state distance (see the module docstring);
-    starts: ``random`` or ``demo``."""
+    starts: ``random`` or ``demo``; align: ``none`` or ``start`` (the module docstring)."""
 
     total_env_steps: int = 2_000
     num_envs: int = 4
@@ -69,6 +77,7 @@ class ILDConfig:
     object_weight: float = 1.0
     effector_weight: float = 1.0
     starts: str = "random"
+    align: str = "none"
     normalize_obs: bool = True
     remat: bool = False
     n_eval: int = 20
@@ -83,6 +92,8 @@ class ILDConfig:
                              f"{', '.join(WEIGHTINGS)}")
         if self.starts not in ("random", "demo"):
             raise ValueError(f"starts must be 'random' or 'demo', got {self.starts!r}")
+        if self.align not in ALIGNS:
+            raise ValueError(f"unknown align {self.align!r}; valid: {', '.join(ALIGNS)}")
 
     def window_for(self, env) -> int:
         return env.horizon if self.window is None else min(self.window, env.horizon)
@@ -129,6 +140,45 @@ def demo_spec(config: ILDConfig) -> demos.DemoSpec:
     return demos.DemoSpec("ild", load_data)
 
 
+def planar_fit(source, target):
+    """``(rot (2, 2), shift (2,))``: the rigid motion in the x-y plane, ``p -> rot @ p +
+    shift``, that maps the points ``source`` (N, 3) onto ``target`` (N, 3) (corresponding
+    by index) with the least squared error (the closed-form 2-D Kabsch fit); z is left
+    as it is."""
+    s, t = source[:, :2], target[:, :2]
+    cs, ct = jnp.mean(s, 0), jnp.mean(t, 0)
+    a, b = s - cs, t - ct
+    angle = jnp.arctan2(jnp.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+                        jnp.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    c, n = jnp.cos(angle), jnp.sin(angle)
+    rot = jnp.stack([jnp.stack([c, -n]), jnp.stack([n, c])])
+    return rot, ct - rot @ cs
+
+
+def move_demonstration(demo: Demonstration, rot, shift) -> Demonstration:
+    """``demo`` with every step's object points and end effector moved by the planar
+    rigid motion ``(rot, shift)`` (:func:`planar_fit`)."""
+    def move(p):
+        return jnp.concatenate([p[..., :2] @ rot.T + shift, p[..., 2:]], -1)
+
+    return demo._replace(points=move(demo.points), effector=move(demo.effector))
+
+
+def episode_targets(env, demo: Demonstration, physics, config: ILDConfig) -> Demonstration:
+    """The demonstration each of a batch of episodes tracks, ``points`` (B, H + 1, N, 3)
+    and ``effector`` (B, H + 1, 3), from the episodes' start ``physics`` (batched):
+    ``demo`` itself (``align="none"``) or moved onto each start (``align="start"``)."""
+    batch = jax.tree_util.tree_leaves(physics)[0].shape[0]
+    if config.align == "none":
+        return demo._replace(
+            points=jnp.broadcast_to(demo.points, (batch, *demo.points.shape)),
+            effector=jnp.broadcast_to(demo.effector, (batch, *demo.effector.shape)))
+    starts = jax.lax.stop_gradient(jax.vmap(env.object_points)(physics))
+    rot, shift = jax.vmap(planar_fit, in_axes=(None, 0))(demo.points[0], starts)
+    moved = jax.vmap(move_demonstration, in_axes=(None, 0, 0))(demo, rot, shift)
+    return moved._replace(key=demo.key)
+
+
 def state_distance(points, effector, target_points, target_effector, config: ILDConfig):
     """The state distance of one step [m^2] (see the module docstring)."""
     d_obj = jnp.sum((points - target_points) ** 2, axis=-1)
@@ -152,7 +202,8 @@ def make_act(env, config: ILDConfig):
 def make_window_loss(env, venv, pnet, config: ILDConfig, window: int):
     """``window_loss(policy, norm, obs, state, params, demo) -> (loss, (obs, state, feats,
     final_r_gt_sum, episodes_ended))``: ``window`` steps of the deterministic policy
-    through the batched env ``venv`` from ``(obs, state)``; the loss is the
+    through the batched env ``venv`` from ``(obs, state)``, ``demo`` the batch's targets
+    (:func:`episode_targets`); the loss is the
     :func:`state_distance` to the demonstration's state after each step, summed over the
     steps inside the episode and divided by ``num_envs * horizon``; differentiable in
     ``policy`` through the simulator."""
@@ -169,8 +220,9 @@ def make_window_loss(env, venv, pnet, config: ILDConfig, window: int):
             obs, state, _, _, info = venv.step(state, to_action(env, jnp.tanh(mean)),
                                                params)
             nxt = jnp.minimum(t + 1, horizon)
+            envs = jnp.arange(nxt.shape[0])
             d = state_distance(points_of(state.physics), effector_of(state.physics),
-                               demo.points[nxt], demo.effector[nxt], config)
+                               demo.points[envs, nxt], demo.effector[envs, nxt], config)
             live = (t < horizon).astype(jnp.float32)
             final_r = jnp.where(t == horizon - 1, info["r_gt"], 0.0)
             return (obs, state), (feats, d * live, final_r, (t == horizon - 1))
@@ -208,11 +260,12 @@ def make_train(env, config: ILDConfig):
             if config.starts == "demo":
                 keys = jnp.broadcast_to(demo.key, keys.shape)
             obs, state = venv.reset(keys, params)
+            targets = episode_targets(env, demo, state.physics, config)
 
             def one_window(c, _):
                 policy, opt_state, norm, obs, state = c
                 (loss, (obs, state, feats, r_sum, n_last)), grads = grad_fn(
-                    policy, norm, obs, state, params, demo)
+                    policy, norm, obs, state, params, targets)
                 policy, opt_state, gnorm, bad = guarded_update(
                     opt, grads, opt_state, policy, config.zero_nans)
                 norm = norm.update(feats) if config.normalize_obs else norm

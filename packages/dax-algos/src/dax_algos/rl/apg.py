@@ -34,12 +34,17 @@ from ..optim import guarded_update, make_optimiser
 from . import losses
 from .training import training_params, update_metrics
 
+OBJECTIVES = ("sum", "final")
+
 
 @dataclasses.dataclass(frozen=True)
 class APGConfig:
     """total_env_steps: training budget in environment steps (``num_envs * window`` per
     update); window: backpropagation horizon in env steps (``None``: the episode);
-    action_noise: std of exploration noise on the pre-squash action (0: none)."""
+    action_noise: std of exploration noise on the pre-squash action (0: none);
+    objective: ``"sum"`` ascends the window's summed training rewards (r_gt + aux_weight
+    r_aux per step), ``"final"`` the final-step r_gt of each episode that ends in the
+    window (the score itself; a window in which no episode ends has no gradient)."""
 
     total_env_steps: int = 20_000
     num_envs: int = 4
@@ -53,12 +58,16 @@ class APGConfig:
     normalize_obs: bool = True
     remat: bool = False
     aux_weight: float = 1.0
+    objective: str = "sum"
     n_eval: int = 20
 
     def __post_init__(self):
         check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
                      positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"unknown objective {self.objective!r}; valid: "
+                             f"{', '.join(OBJECTIVES)}")
 
     def window_for(self, env) -> int:
         return env.horizon if self.window is None else self.window
@@ -86,7 +95,8 @@ def train_env_steps(env, config: APGConfig) -> int:
 def make_rollout(env, venv, pnet, config, window: int):
     """``rollout(policy_params, norm, obs, state, key, params) -> (objective, (obs,
     state, feats, reward, done, info))``: ``window`` steps of the batched env and
-    :func:`dax_algos.rl.losses.apg_return` of their rewards, differentiable in
+    :func:`dax_algos.rl.losses.apg_return` of their rewards (``config.objective="final"``:
+    of each step's r_gt where an episode ends there, zero elsewhere), differentiable in
     ``policy_params`` through the simulator."""
     horizon = env.horizon
 
@@ -106,7 +116,8 @@ def make_rollout(env, venv, pnet, config, window: int):
             body = jax.checkpoint(body)
         (obs, state), (feats, reward, done, info) = jax.lax.scan(
             body, (obs, state), jax.random.split(key, window))
-        return losses.apg_return(reward), (obs, state, feats, reward, done, info)
+        ascended = reward if config.objective == "sum" else jnp.where(done, info["r_gt"], 0.0)
+        return losses.apg_return(ascended), (obs, state, feats, reward, done, info)
 
     return rollout
 

@@ -1,0 +1,295 @@
+"""Ablations of the learners: one method on one task, one config change at a time, the same
+budget, seeds, evaluation starts and demonstrations for every variant (JSON lines and a
+chart).
+
+Each variant is the method's registry budget (``--budget``) with the variant's config
+fields changed (:data:`VARIANTS`, each named after the hypothesis it tests; ``--set``
+changes a field in every variant, the baseline included). Per (variant, seed) one record:
+
+* ``score``: the trained policy's evaluation, the mean final-step r_gt of ``n_eval``
+  rollouts from the runner's evaluation starts for that seed, and ``rollouts`` each one;
+* ``untrained``: the same rollouts of the policy before training (the network's
+  initial parameters from the seed's key, the normaliser's initial statistics);
+* ``curve``: per training update, the training episodes' mean final-step r_gt (the first
+  point is the untrained policy's where an update is one whole episode);
+  ``grad_norm``: per update, the raw (unclipped) global norm of the policy gradient;
+* ``wall_s`` (training and evaluation of the seed, compiled), ``compile_s``,
+  ``env_steps`` and ``env_steps_per_s`` (training env steps over ``wall_s``), the 1-minute
+  load average before the seed.
+
+Summary lines (``"summary": true``), per variant: mean ± SE over seeds of the score and
+of the untrained score, and the paired difference from the baseline (same seeds) with its
+SE: a change is kept only where it is better than the baseline by more than 2 SE.
+Records are appended as each seed finishes; a rerun with the same ``--out`` skips the
+(variant, seed) pairs already there, so a long ablation runs in chunks
+(``--max-minutes``).
+
+    python -m benchmarks.ablate apg fold_cloth1 --variants baseline,raw_obs --seeds 3 \\
+        --out benchmarks/results/2026-11-27-ablate-apg-fold_cloth1.jsonl
+
+writes the JSON lines to ``--out`` and the chart beside it (``.png``). Speed and scores are
+measured here, never asserted in tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import dax_tasks
+from benchmarks.rl_speed import parse_sets
+from dax_algos import learner as learner_mod
+from dax_algos import registry
+from dax_algos.bench import execute, report
+from dax_algos.method import BUDGETS
+from dax_algos.mlp_policy import ObsNorm, feature_dim
+from dax_tasks.io import atomic_write
+
+#: Per method: variant name -> config fields changed from the budget's. Names say the
+#: hypothesis (issue 36): the normaliser inside the differentiated rollout (``raw_obs``),
+#: Adam after the gradient clip (``no_clip``, ``lr_low``), the training objective against
+#: the score (``final_reward``, ``no_aux``), SHAC's window (``window1``), ILD's targets
+#: from random starts (``aligned``).
+VARIANTS = {
+    "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
+            "no_clip": {"max_grad_norm": None}, "lr_low": {"learning_rate": 1e-4},
+            "final_reward": {"objective": "final"}, "no_aux": {"aux_weight": 0.0}},
+    "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
+             "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0}},
+    "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
+            "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
+            "lr_low": {"learning_rate": 1e-4}},
+    "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0},
+            "lr_high": {"learning_rate": 3e-3}},
+}
+
+
+def make_scorer(env, method, config):
+    """``score(policy, seed) -> (n_eval,)``: the final-step r_gt of each evaluation rollout
+    of ``policy`` from the seed's evaluation starts, as the runner evaluates a trained
+    policy (:func:`dax_algos.learner.learner_episode`: the starts of
+    ``fold_in(PRNGKey(seed), 0)``), compiled once."""
+    lrn = method.learner
+    evaluate = jax.jit(lrn.make_evaluate(env, config, lrn.make_act(env, config),
+                                         per_rollout=True))
+
+    def score(policy, seed: int) -> np.ndarray:
+        out = evaluate(policy, jax.random.fold_in(jax.random.PRNGKey(seed), 0),
+                       env.default_params)
+        return np.asarray(jax.device_get(out.score), np.float64)
+
+    return score
+
+
+def untrained_policy(env, method, config, seed: int):
+    """The policy before training: the network's initial parameters from the seed's key
+    and the normaliser's initial statistics."""
+    net = method.learner.network(env, config)
+    return learner_mod.Policy(net.init(jax.random.fold_in(jax.random.PRNGKey(seed), 1)),
+                              ObsNorm.create(feature_dim(env)))
+
+
+def read_records(path) -> list[dict]:
+    """The seed records already in ``path`` (none if it does not exist; a torn last line
+    is dropped)."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    records = []
+    for line in path.read_text().splitlines():
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if not r.get("summary"):
+            records.append(r)
+    return records
+
+
+def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, budget: str,
+              sets: dict, demo_dir=None):
+    """The seed records of one variant (a generator): the method's episode (train, then
+    evaluate) compiled once and called per seed with ``PRNGKey(seed)`` as the runner calls
+    it (:func:`dax_algos.bench.execute.run_method`), the trained policy then evaluated per
+    rollout beside its untrained one."""
+    env = dax_tasks.make(task)
+    method = registry.get(method_name)
+    overrides = {**sets, **changes}
+    config = method.config(budget, task, **overrides)
+    run = method.build(env, config)
+    data = execute.demonstrations(env, run, demo_dir, None)
+    params = env.default_params
+    t0 = time.perf_counter()
+    compiled = jax.jit(run.episode).lower(jax.random.PRNGKey(0), params, *data).compile()
+    compile_s = time.perf_counter() - t0
+    score = make_scorer(env, method, config)
+    for seed in seeds:
+        rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
+               "changes": changes, "sets": sets, "seed": seed,
+               "load_1min": round(os.getloadavg()[0], 2)}
+        t0 = time.perf_counter()
+        out = jax.device_get(jax.block_until_ready(
+            compiled(jax.random.PRNGKey(seed), params, *data)))
+        wall = time.perf_counter() - t0
+        rollouts = score(out.policy, seed)
+        untrained = score(untrained_policy(env, method, config, seed), seed)
+        m = out.metrics
+        steps = int(run.train_env_steps)
+        finite = bool(np.all(np.isfinite(rollouts)))
+        rec.update(status="ok" if finite else "failed",
+                   score=float(np.mean(rollouts)), rollouts=rollouts.tolist(),
+                   untrained=float(np.mean(untrained)), untrained_rollouts=untrained.tolist(),
+                   curve=np.asarray(m.score, np.float64).tolist(),
+                   grad_norm=np.asarray(m.grad_norm, np.float64).tolist(),
+                   nonfinite_grads=int(np.sum(m.nonfinite)),
+                   wall_s=round(wall, 2), compile_s=round(compile_s, 2), env_steps=steps,
+                   env_steps_per_s=round(steps / wall, 2) if steps else None)
+        yield _json_safe(rec)
+
+
+def _json_safe(x):
+    """``x`` with non-finite floats as ``None`` (JSON has no NaN)."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_json_safe(v) for v in x]
+    return x
+
+
+def summarise(records: list[dict]) -> list[dict]:
+    """One summary per variant (see the module docstring), baseline first."""
+    ok = [r for r in records if r["status"] == "ok"]
+    by_variant: dict[str, dict[int, dict]] = {}
+    for r in ok:
+        by_variant.setdefault(r["variant"], {})[r["seed"]] = r
+    base = by_variant.get("baseline", {})
+    out = []
+    for variant in sorted(by_variant, key=lambda v: (v != "baseline", v)):
+        runs = by_variant[variant]
+        scores = [r["score"] for r in runs.values()]
+        untrained = [r["untrained"] for r in runs.values()]
+        mean, se = report.mean_se(scores)
+        umean, use = report.mean_se(untrained)
+        paired = [runs[s]["score"] - base[s]["score"] for s in runs if s in base]
+        dmean, dse = report.mean_se(paired) if variant != "baseline" else (math.nan, math.nan)
+        first = next(iter(runs.values()))
+        out.append({"summary": True, "method": first["method"], "task": first["task"],
+                    "budget": first["budget"], "variant": variant,
+                    "changes": first["changes"], "seeds": sorted(runs),
+                    "score_mean": mean, "score_se": se, "untrained_mean": umean,
+                    "untrained_se": use, "minus_baseline": dmean,
+                    "minus_baseline_se": dse,
+                    "better": bool(len(paired) > 1 and dmean > 2 * dse),
+                    "env_steps_per_s": float(np.mean([r["env_steps_per_s"]
+                                                      for r in runs.values()]))})
+    return out
+
+
+def chart(records: list[dict], summaries: list[dict], path) -> Path:
+    """Evaluation score per variant (mean ± SE over seeds, dots: seeds; the untrained
+    policy's as a hollow marker) and the mean training curve per variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    names = [s["variant"] for s in summaries]
+    for i, s in enumerate(summaries):
+        ax.errorbar([i], [s["score_mean"]], yerr=[s["score_se"] or 0.0], fmt="o",
+                    color=f"C{i}", capsize=4)
+        ax.errorbar([i + 0.25], [s["untrained_mean"]], yerr=[s["untrained_se"] or 0.0],
+                    fmt="o", mfc="none", color=f"C{i}", capsize=3)
+        seeds = [r["score"] for r in records
+                 if r["variant"] == s["variant"] and r["status"] == "ok"]
+        ax.plot([i - 0.15] * len(seeds), seeds, "k.", alpha=0.5)
+        curves = [r["curve"] for r in records
+                  if r["variant"] == s["variant"] and r["status"] == "ok" and r["curve"]]
+        if curves:
+            n = min(len(c) for c in curves)
+            mean = np.nanmean(np.asarray([c[:n] for c in curves], np.float64), 0)
+            ax2.plot(np.arange(n), mean, color=f"C{i}", label=s["variant"])
+    ax.set_xticks(range(len(names)), names, rotation=20)
+    ax.set_ylabel("evaluation score (final-step r_gt)")
+    ax.set_title("filled: trained, mean ± SE over seeds; hollow: untrained", fontsize=9)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax2.set_xlabel("update")
+    ax2.set_ylabel("training episodes' final-step r_gt (mean over seeds)")
+    ax2.legend(fontsize=8)
+    ax2.grid(True, alpha=0.3)
+    s0 = summaries[0]
+    fig.suptitle(f"{s0['method']} on {s0['task']}: ablations ({s0['budget']} budget)")
+    fig.tight_layout()
+    path = Path(path)
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=100))
+    plt.close(fig)
+    return path
+
+
+def write(path, records: list[dict]) -> list[dict]:
+    """Rewrite ``path`` atomically: the seed records, then the summaries."""
+    summaries = [_json_safe(s) for s in summarise(records)]
+    atomic_write(path, "".join(json.dumps(r) + "\n" for r in records + summaries))
+    return summaries
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.ablate",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("method", choices=sorted(VARIANTS))
+    p.add_argument("task", choices=sorted(dax_tasks.TASKS))
+    p.add_argument("--variants", default=None,
+                   help="comma-separated (default: all of the method's)")
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--budget", default="full", choices=BUDGETS)
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="config override for every variant (Python literal)")
+    p.add_argument("--demos", default=None, help="demonstration directory")
+    p.add_argument("--max-minutes", type=float, default=None,
+                   help="start no new seed after this many minutes (resume later)")
+    p.add_argument("--out", required=True, help="JSON lines file (the chart goes beside)")
+    args = p.parse_args(argv)
+    table = VARIANTS[args.method]
+    names = [n.strip() for n in (args.variants or ",".join(table)).split(",")]
+    unknown = [n for n in names if n not in table]
+    if unknown:
+        p.error(f"unknown variant(s) {unknown}; valid for {args.method}: {', '.join(table)}")
+    execute.use_default_compilation_cache()
+    sets = parse_sets(args.set)
+    out = Path(args.out)
+    records = read_records(out)
+    done = {(r["variant"], r["seed"]) for r in records}
+    t0 = time.monotonic()
+    for name in names:
+        todo = [s for s in range(args.seeds) if (name, s) not in done]
+        if not todo:
+            continue
+        if args.max_minutes is not None and time.monotonic() - t0 > 60 * args.max_minutes:
+            break
+        for rec in run_seeds(args.task, args.method, name, table[name], todo, args.budget,
+                             sets, args.demos):
+            records.append(rec)
+            print(json.dumps({k: rec.get(k) for k in ("variant", "seed", "status", "score",
+                                                      "untrained", "wall_s", "error")}),
+                  file=sys.stderr, flush=True)
+            write(out, records)
+    summaries = write(out, records)
+    for s in summaries:
+        print(json.dumps(s))
+    if summaries:
+        print(chart(records, summaries, out.with_suffix(".png")), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
