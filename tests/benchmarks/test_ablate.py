@@ -1,0 +1,49 @@
+"""The ablation benchmark's bookkeeping (``benchmarks/ablate.py``): a variant is called
+better only when its paired difference from the baseline over the same seeds exceeds 2 SE;
+a resumed run reads back what a killed one wrote, a torn last line dropped."""
+
+import json
+import math
+
+import pytest
+
+from benchmarks import ablate
+
+
+def _rec(variant, seed, score, untrained=0.3):
+    return {"method": "apg", "task": "fold_cloth1", "budget": "full", "variant": variant,
+            "changes": {}, "seed": seed, "status": "ok", "score": score,
+            "untrained": untrained, "env_steps_per_s": 5.0}
+
+
+def test_summary_pairs_variants_with_the_baseline_by_seed():
+    base = [0.40, 0.50, 0.60]
+    records = [_rec("baseline", s, x) for s, x in enumerate(base)]
+    # +0.05 on every seed: the paired SE is 0, the unpaired spread 0.06: better
+    records += [_rec("steady", s, x + 0.05) for s, x in enumerate(base)]
+    # the same mean gain, but from one seed: its paired SE is 0.05, not better
+    gains = (0.15, 0.0, 0.0)
+    records += [_rec("lucky", s, base[s] + gains[s]) for s in range(3)]
+    records.append({**_rec("broken", 0, 0.9), "status": "failed"})  # left out
+    out = {s["variant"]: s for s in ablate.summarise(records)}
+    assert list(out) == ["baseline", "lucky", "steady"]
+    assert out["steady"]["minus_baseline"] == pytest.approx(0.05)
+    assert out["steady"]["minus_baseline_se"] == pytest.approx(0.0, abs=1e-12)
+    assert out["steady"]["better"]
+    assert out["lucky"]["minus_baseline"] == pytest.approx(0.05)
+    assert out["lucky"]["minus_baseline_se"] == pytest.approx(0.05)
+    assert not out["lucky"]["better"]
+    assert out["baseline"]["score_mean"] == pytest.approx(0.5)
+    assert out["baseline"]["score_se"] == pytest.approx(0.1 / math.sqrt(3))
+    assert math.isnan(out["baseline"]["minus_baseline"]) and not out["baseline"]["better"]
+
+
+def test_a_resumed_run_reads_the_records_and_drops_a_torn_line(tmp_path):
+    path = tmp_path / "ablate.jsonl"
+    assert ablate.read_records(path) == []
+    records = [_rec("baseline", 0, 0.4), _rec("baseline", 1, 0.5)]
+    ablate.write(path, records)
+    text = path.read_text()
+    assert text.count('"summary": true') == 1  # the summary is rewritten, not read back
+    path.write_text(text + json.dumps(_rec("baseline", 2, 0.6))[:40])  # a killed writer
+    assert ablate.read_records(path) == records
