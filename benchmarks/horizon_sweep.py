@@ -111,6 +111,59 @@ def chart(records, path: Path) -> None:
     plt.close(fig)
 
 
+def _norm(x) -> str:
+    """A gradient norm with two significant figures (``-``: none)."""
+    if x is None:
+        return "-"
+    if abs(x) >= 1e4:
+        m, e = f"{x:.1e}".split("e")
+        return f"{m}e{int(e)}"
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:#.2g}".rstrip(".")
+
+
+def render_table(*paths) -> str:
+    """The Markdown table of sweeps written by :func:`main` (JSON lines, one per window and
+    seed; one file per task): per task and window the updates, the gradient norm at
+    initialisation, its median during training and the score after training, one value per
+    training seed (in seed order), with the budget, clip and evaluation under the table."""
+    from benchmarks._report import file_date, read_result
+
+    recs, names = [], []
+    for path in paths:
+        path, lines = read_result(path)
+        recs += lines if isinstance(lines, list) else [lines]
+        names.append(f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})")
+    out = ["| task | window [env steps] | updates | gradient norm at init | median during "
+           "training | score after training |", "|---|---|---|---|---|---|"]
+    groups = {}
+    for r in recs:
+        groups.setdefault((r["task"], r["window"]), []).append(r)
+    for (task, window), rs in groups.items():
+        rs = sorted(rs, key=lambda r: r["seed"])
+        updates = ", ".join(dict.fromkeys(str(r["updates"]) for r in rs))
+        scores = ", ".join("-" if r["score"] is None else f"{r['score']:.2f}" for r in rs)
+        out.append(f"| {task} | {window} | {updates} | "
+                   + " | ".join(", ".join(_norm(r[k]) for r in rs)
+                                for k in ("grad_norm_init", "grad_norm_median"))
+                   + f" | {scores} |")
+    seeds = sorted({r["seed"] for r in recs})
+    budget = "; ".join(
+        f"{task}: {rs[0]['env_steps']} training env steps at every window, "
+        f"{rs[0]['config'].get('num_envs')} envs"
+        for task, rs in {r["task"]: [x for x in recs if x["task"] == r["task"]]
+                         for r in recs}.items())
+    cfg = recs[0]["config"] if recs else {}
+    out += ["", f"One value per training seed (seeds {', '.join(map(str, seeds))}), no "
+            f"standard error. Gradient norm: the raw global norm of APG's policy gradient "
+            f"(before the clip at {cfg.get('max_grad_norm')}), at initialisation over the "
+            f"window from a reset, and its median over the training updates; score: the "
+            f"mean final-step r_gt of {cfg.get('n_eval')} evaluation rollouts of the "
+            f"seed's trained policy. {budget}. Non-finite gradients: "
+            f"{sum(r.get('nonfinite_grads', 0) for r in recs)}. The files record neither "
+            f"the machine nor its load; " + ", ".join(names) + "."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.horizon_sweep",
                                 description=__doc__.split("\n\n")[0])

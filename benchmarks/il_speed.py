@@ -72,6 +72,39 @@ def measure_transporter(task: str, method: str, reps: int = 3, overrides=None,
     return record
 
 
+def render_table(path) -> str:
+    """The Markdown table of a file of :func:`main`'s JSON lines: per method and task, the
+    training cost (Transporter: seconds per epoch over the demonstrated steps and per Adam
+    step; ILD: seconds per update, as :func:`benchmarks.rl_speed.render_table`), the
+    inference time per action (Transporter), the compile time and the process's peak
+    resident memory so far; the device and the file's date under the table."""
+    from benchmarks._report import file_date, read_result
+    from benchmarks.rl_speed import _s, update_label
+
+    path, recs = read_result(path)
+    out = ["| method | task | training | per action | compile [s] | process peak RSS so "
+           "far |", "|---|---|---|---|---|---|"]
+    for r in recs:
+        if "epoch_s" in r:
+            train = (f"{_s(r['epoch_s'])} s per epoch ({r['samples']} samples, "
+                     f"{r['adam_steps_per_epoch']} Adam steps of "
+                     f"{r['config'].get('batch_size')}: {r['adam_step_ms']:.0f} ms each)")
+            act = f"{r['inference_ms_per_action']:.1f} ms"
+        else:
+            train = (f"{_s(r['update_s'])} s per update ({update_label(r)}), XLA scratch "
+                     f"{r.get('xla_temp_mb', '-')} MiB")
+            act = "-"
+        out.append(f"| {r['method']} | {r['task']} | {train} | {act} | "
+                   f"{_s(r['compile_s_1'])} | {r['peak_rss_mb'] / 1e3:.2f} GB |")
+    devices = sorted({r.get("device", "?") for r in recs})
+    out += ["", "Epoch and update times: (t(3) − t(1)) / 2 of the jitted training, each the "
+            "median of the run's calls after compilation; per action: one jitted `act` on "
+            "one picture, the median of at least 20 calls and 1 s. "
+            f"{', '.join(devices)}; the file does not record the machine's load. "
+            f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.il_speed",
                                 description=__doc__.split("\n\n")[0])

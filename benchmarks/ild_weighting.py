@@ -131,6 +131,41 @@ def chart(records: list[dict], path) -> Path:
     return path
 
 
+def render_table(path) -> str:
+    """The Markdown table of :func:`run`'s records (the JSON lines :func:`main` writes):
+    per weighting its config, its score (mean ± SE: over training seeds, or over the
+    evaluation rollouts where there was one seed, as the table states), its tracking loss
+    after the last update over the first update's, its env steps and seconds per seed."""
+    import math
+
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    out = ["| weighting (config) | score | tracking loss after the last update / first "
+           "update's | training seconds per seed |", "|---|---|---|---|"]
+    conventions = set()
+    for r in recs:
+        one = r["seeds"] == 1 or not math.isfinite(r.get("score_se", float("nan")))
+        se = r["rollout_se"] if one else r["score_se"]
+        n = len(r["rollout_scores"][0]) if one else r["seeds"]
+        conventions.add(f"over the {n} evaluation rollouts of its one training seed" if one
+                        else f"over its {n} training seeds")
+        cfg = ", ".join(f"{k}={v}" for k, v in r["config"].items())
+        loss = r["loss_per_update"]
+        out.append(f"| `{r['weighting']}` ({cfg}) | {r['score_mean']:.3f} ± {se:.3f} | "
+                   f"{loss[-1] / loss[0]:.2f} after {len(loss)} updates | "
+                   f"{r['seconds_per_seed']:.0f} |")
+    tasks = sorted({r["task"] for r in recs})
+    budgets = sorted({f"{r['budget']} budget, {r['env_steps']} env steps" for r in recs})
+    out += ["", f"{', '.join(tasks)}, {'; '.join(budgets)}; score: the mean final-step r_gt "
+            f"of the trained policy's evaluation rollouts, ± the standard error "
+            f"{' / '.join(sorted(conventions))}. Non-finite gradients: "
+            f"{sum(r.get('nonfinite_grads', 0) for r in recs)}. The file records neither "
+            f"the machine nor its load; `{path.as_posix()}` "
+            f"({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.ild_weighting",
                                 description=__doc__.split("\n\n")[0])

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 
@@ -256,6 +257,94 @@ def cmd_mpm_study(args):
 
 
 # --------------------------------------------------------------------------- CLI
+
+def render_gpu_cpu_table(*paths) -> str:
+    """The Markdown table of the solver benchmarks on an accelerator beside a CPU, from
+    result files recognised by their content: the accelerator's JSON lines of this
+    module's (or ``dax_physics.tools.bench``'s) ``--json`` records after an ``about`` line
+    with its ``commands``; on the CPU, a ``benchmarks.side_by_side`` document (DaX's
+    median substeps per second per scene) and a ``benchmarks.grad_over_forward`` document
+    (the median gradient ÷ forward ratio of the ``current`` side). One row per benchmark;
+    a cell with no figure is empty; the runs' machines, loads and dates under the
+    table."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    gpu, about, sbs, gof, notes = [], {}, None, None, []
+    for path in paths:
+        path, doc = read_result(path)
+        where = f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})"
+        if isinstance(doc, list):
+            about = next((r for r in doc if "about" in r), {})
+            gpu = [r for r in doc if "bench" in r]
+            notes.append(f"accelerator: {about.get('about', '')}; {where}: "
+                         + "; ".join(f"`{c}`" for c in about.get("commands", [])))
+        elif "scenes" in doc:
+            sbs, meta = doc, doc["meta"]
+            load = load_range([meta["loadavg_start"][0], meta["loadavg_end"][0]])
+            notes.append(f"CPU substeps/s: `{meta['tool']}`, DaX's median of {meta['reps']} "
+                         f"runs, {meta['cpu_count']} cores, started {meta['started_utc']}, "
+                         f"1-minute load {load}; {where}")
+        elif doc.get("bench") == "grad-over-forward":
+            gof = doc
+            loads = [r.get("load_1min") for r in doc["runs"] if r.get("side") == "current"]
+            notes.append(f"CPU gradient ÷ forward: `benchmarks.grad_over_forward`, median of "
+                         f"{doc['rounds']} rounds of {doc['reps']} alternating calls, "
+                         f"{doc['cpus']} cores, 1-minute load {load_range(loads)}; {where}")
+        else:
+            raise ValueError(f"{path}: neither accelerator JSON lines, a side-by-side nor a "
+                             "grad-over-forward document")
+
+    def g(**match):
+        return next((r for r in gpu if all(r.get(k) == v for k, v in match.items())), None)
+
+    def rate(r, key="substeps_per_s"):
+        return "" if r is None else f"{r[key]:.0f}"
+
+    def cpu_rate(scene):
+        s = (sbs or {}).get("scenes", {}).get(scene, {})
+        v = s.get("substeps_per_s_median", {}).get("dax")
+        return "" if v is None else f"{v:.0f}"
+
+    def ratio(*rs):
+        return "" if any(r is None for r in rs) else " / ".join(
+            f"{r['grad_over_forward']:.2f}" for r in rs)
+
+    def cpu_ratio(*names):
+        s = (gof or {}).get("summary", {})
+        vals = [s.get(f"{n}/current", {}).get("grad_over_forward_median") for n in names]
+        return "" if None in vals else " / ".join(f"{v:.2f}" for v in vals)
+
+    m = re.search(r"on one (.+?) \(", about.get("about", ""))
+    head_gpu = m[1] if m else "accelerator"
+    cpus = (sbs or {}).get("meta", {}).get("cpu_count") or (gof or {}).get("cpus")
+    rows = [
+        ("`mpm-block` fluid, 8192 particles, 32³ [substeps/s]",
+         rate(g(bench="mpm-block", material="fluid", grid=32, batch=0)), cpu_rate("fluid32")),
+        ("`mpm-block` elastic [substeps/s]",
+         rate(g(bench="mpm-block", material="elastic", grid=32, batch=0)),
+         cpu_rate("elastic32")),
+        ("`mpm-block` fluid, 32 768 particles, 64³ [substeps/s]",
+         rate(g(bench="mpm-block", material="fluid", grid=64, batch=0)), cpu_rate("fluid64")),
+        ("`mpm-block --batch 64` fluid 32³ [scene-substeps/s]",
+         rate(g(bench="mpm-block", material="fluid", grid=32, batch=64),
+              "scene_substeps_per_s"), ""),
+        ("`cloth-drop` 64×64 [substeps/s]", rate(g(bench="cloth-drop", n=64)),
+         cpu_rate("cloth")),
+        ("`mpm-grad` fluid / elastic, no segments: gradient ÷ forward",
+         ratio(g(bench="mpm-grad", material="fluid", checkpoint_segments=1),
+               g(bench="mpm-grad", material="elastic", checkpoint_segments=1)),
+         cpu_ratio("fluid-s1", "elastic-s1")),
+        ("`mpm-grad` fluid, 10 segments: gradient ÷ forward",
+         ratio(g(bench="mpm-grad", material="fluid", checkpoint_segments=10)),
+         cpu_ratio("fluid-s10")),
+        ("`cloth-grad` 64×64: gradient ÷ forward", ratio(g(bench="cloth-grad", n=64)),
+         cpu_ratio("cloth")),
+    ]
+    out = [f"| benchmark | {head_gpu} | {cpus or '?'}-core CPU |", "| --- | --- | --- |"]
+    out += [f"| {a} | {b} | {c} |" for a, b, c in rows]
+    out += ["", "Medians after a warm-up or ahead-of-time compile. " + ". ".join(notes) + "."]
+    return "\n".join(out) + "\n"
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m benchmarks.physics", description=__doc__,

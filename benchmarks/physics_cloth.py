@@ -204,6 +204,7 @@ def _curtain_sag(n, dt_frac, size=0.3, t_end=2.0):
 def run_sag_study(args):
     ns = [int(s) for s in args.ns.split(",")]
     fracs = [float(s) for s in args.dt_fractions.split(",")]
+    load0 = round(os.getloadavg()[0], 2)
     ref = _curtain_sag(args.n_ref, min(fracs))
     rows = []
     for n in ns:
@@ -212,7 +213,10 @@ def run_sag_study(args):
             r["abs_error"] = abs(r["sag"] - ref["sag"])
             r["rel_error"] = r["abs_error"] / ref["sag"]
             rows.append(r)
-    rec = dict(bench="cloth-sag-study", reference=ref, rows=rows)
+    rec = dict(bench="cloth-sag-study", reference=ref, rows=rows, n_ref=args.n_ref,
+               dt_fractions=fracs, date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+               cpus=os.cpu_count(), jax=jax.__version__, device=str(jax.devices()[0]),
+               load_1min=[load0, round(os.getloadavg()[0], 2)])
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "cloth_sag_study.json"), "w") as fh:
         json.dump(rec, fh, indent=1)
@@ -312,6 +316,71 @@ def _mesh_record(n: int, S: int, reps: int, clock, wall: bool) -> dict:
                   "vertex_substeps_per_s": V * S / t_f,
                   "forward_grad_s": float(np.median(times[k]["grad"]))}
     return rec
+
+
+def render_mesh_table(path) -> str:
+    """The Markdown table of a file of ``cloth-mesh`` records (:func:`run_cloth_mesh`'s
+    JSON lines, one per cloth size): per size the forward time per substep with the
+    scatter and with the stencil spring sum [µs], the vertex-substeps per second of both
+    and the forward-plus-gradient time of both [s]; the clock, the positions' agreement
+    and the file under the table."""
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    recs = recs if isinstance(recs, list) else [recs]
+    substeps = sorted({r["substeps"] for r in recs})
+    out = ["| mesh path, " + "/".join(map(str, substeps)) + " substeps | "
+           + " | ".join(f"{r['vertices']} vertices" for r in recs) + " |",
+           "|---|" + "---|" * len(recs)]
+    rows = [("forward, scatter sum [µs/substep]",
+             lambda r: f"{r['scatter']['us_per_substep']:.1f}"),
+            ("forward, stencil sum [µs/substep]",
+             lambda r: f"{r['stencil']['us_per_substep']:.1f}"),
+            ("M vertex-substeps/s, scatter → stencil",
+             lambda r: f"{r['scatter']['vertex_substeps_per_s'] / 1e6:.1f} → "
+                       f"{r['stencil']['vertex_substeps_per_s'] / 1e6:.1f}"),
+            ("forward + gradient [s], scatter → stencil",
+             lambda r: f"{r['scatter']['forward_grad_s']:.3f} → "
+                       f"{r['stencil']['forward_grad_s']:.3f}")]
+    out += [f"| {name} | " + " | ".join(cell(r) for r in recs) + " |" for name, cell in rows]
+    clocks = sorted({r.get("clock", "wall") for r in recs})
+    agree = max(r["max_abs_dx_stencil_vs_scatter_m"] for r in recs)
+    out += ["", f"Medians, {'/'.join(clocks)} clock; positions after the last substep agree "
+            f"to {agree:.1g} m between the two sums. The file records neither the machine "
+            f"nor its load; `{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
+def render_sag_table(path) -> str:
+    """The Markdown table of a ``cloth-sag-study`` document (:func:`run_sag_study`'s
+    JSON): per cloth size and substep its sag [mm], its error against the fine reference
+    and its wall time for the 2 s simulated, compile included [s]; the reference, the
+    largest change the substep makes at one size, and the run's date, machine and load
+    under the table."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    path, doc = read_result(path)
+    ref = doc["reference"]
+    out = ["| vertices per side | dt / dt_max | substeps | sag [mm] | error vs n = "
+           f"{ref['n']} | wall, compile included [s] |", "|---|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        out.append(f"| {r['n']} | {r['dt_fraction']:g} | {r['substeps']} | "
+                   f"{1e3 * r['sag']:.3f} | {100 * r['rel_error']:.1f} % | "
+                   f"{r['wall_s']:.2f} |")
+    by_n = {}
+    for r in doc["rows"]:
+        by_n.setdefault(r["n"], []).append(r["sag"])
+    dt_change = max((max(s) - min(s)) / ref["sag"] for s in by_n.values())
+    when = doc.get("date") or file_date(path) or "date not recorded"
+    machine = (f"{doc['device']}, {doc['cpus']} cores, jax {doc['jax']}, 1-minute load "
+               f"{load_range(doc['load_1min'])}" if "cpus" in doc
+               else "machine and load not recorded")
+    out += ["", f"A vertical 0.3 m curtain held at its two top corners, sag of its top "
+            f"edge's midpoint after 2 s; reference: n = {ref['n']} at dt_max × "
+            f"{ref['dt_fraction']:g}, sag {1e3 * ref['sag']:.3f} mm. The substep changes "
+            f"the sag by at most {100 * dt_change:.2g} % of it at one size. {when}, "
+            f"{machine}; `{path.as_posix()}`."]
+    return "\n".join(out) + "\n"
 
 
 def add_subparsers(subparsers):

@@ -687,6 +687,76 @@ def chart(result: dict, path: str) -> bool:
     return True
 
 
+def _mm(x) -> str:
+    """A distance [m] in mm: one decimal, two significant figures below 1 mm."""
+    v = 1e3 * x
+    return f"{v:.1f}" if abs(v) >= 1 else f"{v:#.2g}".rstrip(".")
+
+
+def render_table(*paths) -> str:
+    """The Markdown table of studies (:func:`study`'s JSON files, one per task): per task
+    its rungs (the default in bold, the fine rung last, a rung whose physics fails crossed),
+    the default's error against the fine rung (mean / max over the env steps [mm]), the
+    chaos floor's mean error [mm], the final r_gt of the default and the fine rung, the CPU
+    time per env step of both [s] and whether the default is on the Pareto front (if not,
+    the rung that dominates it with its time and error ratios); the seed, mode, device,
+    load and dates under the table."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    out = ["| task | rungs (default in bold, fine last, ✗ not valid) | default's error vs "
+           "fine: mean / max [mm] | chaos floor [mm] | final r_gt: default / fine | CPU per "
+           "step: default / fine [s] | default on the Pareto front |",
+           "| --- | --- | --- | --- | --- | --- | --- |"]
+    loads, seeds, modes, dates, devices, files = [], set(), set(), set(), set(), []
+    for path in paths:
+        path, doc = read_result(path)
+        files.append(f"`{path.as_posix()}`")
+        rungs = doc["rungs"]
+        d = next(r for r in rungs if r["is_default"])
+        f = next(r for r in rungs if r["is_fine"])
+        invalid = set(doc.get("invalid", []))
+        names = []
+        for r in rungs:
+            label = r["label"].replace(" (default)", "").replace(", default)", ")")
+            label = label.replace(" (fine)", "").replace(", fine)", ")")
+            label = f"**{label}**" if r["is_default"] else label
+            names.append(label + (" ✗" if r["label"] in invalid else ""))
+        if doc.get("default_on_front"):
+            front = "yes, among the valid rungs" if invalid else "yes"
+        elif doc.get("dominated_by"):
+            dom = doc["dominated_by"]
+            front = (f"no ({dom['label']} is {1 / dom['time_ratio']:.1f}x as fast with "
+                     f"{dom['error_ratio']:.2f}x the error)")
+        else:
+            front = "no"
+        chaos = doc.get("chaos_floor") or {}
+        out.append(f"| {doc['task']} | {'; '.join(names)} | {_mm(d['error_mean'])} / "
+                   f"{_mm(d['error_max'])} | "
+                   f"{_mm(chaos['error_mean']) if chaos else '-'} | "
+                   f"{d['final_r_gt']:.3f} / {f['final_r_gt']:.3f} | "
+                   f"{d['step_cpu_s']:#.2g}".rstrip(".") + f" / {f['step_cpu_s']:#.3g}".rstrip(".")
+                   + f" | {front} |")
+        loads += doc.get("load_average", [])[:1]
+        seeds.add(doc["seed"])
+        modes.add(doc.get("mode", "closed"))
+        dates.add(file_date(path) or "date not recorded")
+        devices.add(doc.get("device", "?"))
+    out += ["", f"Seed {', '.join(map(str, sorted(seeds)))}, {' and '.join(sorted(modes))} "
+            "loop (closed: each rung's own expert; replay: the default's actions). Error: "
+            "the mean distance between a rung's probe points and the fine rung's, per env "
+            "step, its mean and maximum over the episode; chaos floor: the default against "
+            "itself with its start moved "
+            f"{FLOOR_SHIFT * 1e6:g} µm; CPU per step: the process's CPU time per env step, "
+            "median over the episode after an ahead-of-time compile. ✗: layers that pass "
+            "through each other at the end (`benchmarks.resolution.valid`), left off the "
+            "front. "
+            f"{', '.join(sorted(devices))}, 1-minute load {load_range(loads)} at the start "
+            f"of the runs; {', '.join(sorted(dates))}; `python -m benchmarks.tasks "
+            f"resolution --task TASK --out DIR` (files: "
+            + ", ".join(files) + ")."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(prog="python -m benchmarks.tasks resolution",
                                 description=__doc__,

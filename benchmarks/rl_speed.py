@@ -78,6 +78,48 @@ def parse_sets(items) -> dict:
     return overrides
 
 
+def _s(x: float) -> str:
+    """Seconds with three significant figures."""
+    return f"{x:#.3g}".rstrip(".")
+
+
+def update_label(r: dict) -> str:
+    """What one update of record ``r`` is: its envs times the env steps each takes, and
+    the backpropagation window where the config has one shorter than that."""
+    envs = r["config"].get("num_envs") or 1
+    steps = r["steps_per_update"] // envs
+    window = r["config"].get("window")
+    w = f", window {window}" if window and window < steps else ""
+    return f"{envs} envs × {steps} steps{w}"
+
+
+def render_table(path) -> str:
+    """The Markdown table of a file of :func:`main`'s JSON lines: per task and method, the
+    env steps of one training update, its time, the env steps per second, XLA's scratch
+    memory of the one-update program and its compile time; the device, the process's
+    peak memory and the file's date under the table."""
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    out = ["| task | method (one update) | env steps per update | time per update [s] | "
+           "env steps/s | XLA scratch [MiB] | compile [s] |", "|---|---|---|---|---|---|---|"]
+    for r in recs:
+        out.append(f"| {r['task']} | {r['method']} ({update_label(r)}) | "
+                   f"{r['steps_per_update']} | {_s(r['update_s'])} | "
+                   f"{_s(r['env_steps_per_s'])} | {r.get('xla_temp_mb', '-')} | "
+                   f"{_s(r['compile_s_1'])} |")
+    devices = sorted({r.get("device", "?") for r in recs})
+    rss = [r["peak_rss_mb"] for r in recs if r.get("peak_rss_mb")]
+    out += ["", "Time per update = (t(3 updates) − t(1 update)) / 2 of the jitted `train`, "
+            "each the median of the run's calls after compilation (initialisation, reset "
+            "and evaluation cancel), with each method's full-budget config; XLA scratch: "
+            "the compiled one-update program's temporaries. "
+            f"{', '.join(devices)}, process peak RSS up to {max(rss, default=0):.0f} MB; "
+            f"the file does not record the machine's load. `{path.as_posix()}` "
+            f"({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.rl_speed",
                                 description=__doc__.split("\n\n")[0])

@@ -111,6 +111,59 @@ def run_child(args, devices: int) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def _bytes(n: float) -> str:
+    """A byte count in MB or GB (decimal), two or three significant figures."""
+    return (f"{n / 1e9:#.2g}".rstrip(".") + " GB" if n >= 1e9
+            else f"{n / 1e6:#.3g}".rstrip(".") + " MB")
+
+
+def _sig(x: float, n: int = 3) -> str:
+    """``x`` with ``n`` significant figures, trailing zeros kept; whole numbers from 100."""
+    return f"{x:.0f}" if abs(x) >= 10 ** (n - 1) else f"{x:#.{n}g}".rstrip(".")
+
+
+def render_table(*paths) -> str:
+    """The Markdown table of :func:`main`'s JSON documents at ``paths``: one row per device
+    count of each, with where it ran, the batch, the compile time, the timed calls' median
+    (range, count), env steps per second, XLA's temporaries per device, the peak memory
+    (the accelerator's per device where measured, else the process's resident memory),
+    the 1-minute load before and after, and the summed reward and gradient norm (equal
+    work on every count); the task, commands and dates under the table."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    out = ["| where | devices | rollouts × steps | compile [s] | run [s] | env steps/s | "
+           "XLA temporaries per device | peak memory | 1-min load | summed reward, "
+           "gradient norm |", "|---|---|---|---|---|---|---|---|---|---|"]
+    sources, tasks = [], set()
+    for path in paths:
+        path, doc = read_result(path)
+        tasks.add(doc["task"])
+        cpus = doc.get("machine", {}).get("cpus")
+        for r in doc["results"]:
+            kind = r.get("device_kind", r.get("platform", "?"))
+            where = (f"{cpus}-core CPU, jax {doc['jax']}" if kind == "cpu"
+                     else f"{kind}, jax {doc['jax']}")
+            runs = r.get("run_s_all") or [r["run_s_median"]]
+            spread = f"{_sig(min(runs))}-{_sig(max(runs))}, " if len(runs) > 1 else ""
+            peak = (f"{max(r['device_peak_mib']) / 1024:.2g} GiB on the device"
+                    if r.get("device_peak_mib") else f"RSS {r['peak_rss_mib'] / 1024:.2g} GiB")
+            out.append(f"| {where} | {r['devices']} | {doc['rollouts']} × {doc['steps']} | "
+                       f"{_sig(r['compile_s'])} | {_sig(r['run_s_median'])} ({spread}"
+                       f"{len(runs)} run{'s' if len(runs) > 1 else ''}) | "
+                       f"{_sig(r['env_steps_per_s'])} | "
+                       f"{_bytes(r['xla_bytes_per_device']['temporaries'])} | {peak} | "
+                       f"{load_range(r.get('load_avg_1min') or [])} | "
+                       f"{r['return']:.6g}, {r['grad_norm']:.6g} |")
+        sources.append(f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'}: "
+                       f"`{doc['command']}`)")
+    out += ["", f"{', '.join(sorted(tasks))} at its default resolution of the day, uniform "
+            "random actions, the summed reward and its gradient with respect to every "
+            "action in one jitted program, the batch split over the devices (forced host "
+            "devices on a CPU share its cores); run: the median of the timed calls after "
+            "the compile. " + "; ".join(sources) + "."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--devices", default="1,2,4", help="comma-separated device counts")

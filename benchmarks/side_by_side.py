@@ -386,6 +386,44 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def render_table(path) -> str:
+    """The Markdown table of a document of :func:`main` (``--out``): per scene and engine
+    the median substeps per second (range and count of the runs), the median compile
+    time, DaX's median over the engine's, and the largest difference of the engine's
+    check-run positions from DaX's [m]; the run's date, machine, load and warnings under
+    the table."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    path, doc = read_result(path)
+    meta = doc["meta"]
+    out = ["| scene | engine | substeps/s: median (range, runs) | compile [s] | DaX ÷ "
+           "engine | max abs position difference from DaX [m] |",
+           "|---|---|---|---|---|---|"]
+    for name, s in doc["scenes"].items():
+        params = ", ".join(f"{k} {v}" for k, v in s["params"].items() if v is not None)
+        agree = (s.get("agreement") or {}).get("max_abs_diff", {})
+        for engine, th in s["throughput"].items():
+            st = th.get("substeps_per_s")
+            rate = ("failed" if not st else
+                    f"{st['median']:.0f} ({st['min']:.0f}-{st['max']:.0f}, {st['n']})")
+            comp = th.get("compile_s")
+            ratio = s.get("ratio_dax_over_peer", {}).get(engine)
+            diff = agree.get(f"dax_vs_{engine}")
+            out.append(f"| {name} ({params}) | {engine} | {rate} | "
+                       f"{'-' if not comp else format(comp['median'], '.2f')} | "
+                       f"{'-' if ratio is None else format(ratio, '.2f')} | "
+                       f"{'-' if diff is None else format(diff, '.1e')} |")
+    load = load_range([meta["loadavg_start"][0], meta["loadavg_end"][0]])
+    warn = f" Warning recorded: {meta['busy_machine_warning']}." \
+        if meta.get("busy_machine_warning") else ""
+    out += ["", f"{meta['cpu_count']} cores ({meta['machine']}), started "
+            f"{meta['started_utc']}, 1-minute load {load} (start, end), {meta['reps']} runs "
+            f"per engine, DaX's compilation cache {meta.get('dax_jax_compilation_cache')}. "
+            + " ".join(meta.get("notes", [])) + warn
+            + f" `{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     root = repo_root()

@@ -2,8 +2,7 @@
 
     python -m benchmarks.tables scores DIR [--tasks T1,T2] [--methods M1,M2]
                                            [--budget quick|full] [--include-stale]
-    python -m benchmarks.tables throughput FILE
-    python -m benchmarks.tables self_collision FILE
+    python -m benchmarks.tables KIND FILE [FILE ...]     # a kind of FILE_KINDS
     python -m benchmarks.tables check [README.md ...]
     python -m benchmarks.tables update [README.md ...]
 
@@ -12,10 +11,9 @@ holding ``results.csv`` and ``run.json``, or a results CSV), as ``dax-bench repo
 --markdown`` prints it (:func:`dax_algos.bench.summary.markdown_tables`): methods as rows,
 tasks as columns, the standard-error convention and where the rows come from stated under
 the table, stale rows (:mod:`dax_algos.bench.provenance`) left out unless
-``--include-stale`` (then marked †). ``throughput``: the task throughput table that
-``benchmarks.tasks.render_throughput_table`` renders from its JSON file.
-``self_collision``: what self-collision costs each cloth task and the cloth speed targets,
-from a ``benchmarks.cloth_self_collision`` result file (``render_table``).
+``--include-stale`` (then marked †). Every other kind (:data:`FILE_KINDS`) is the table of
+one benchmark's result file(s), rendered by a function of the benchmark module that writes
+them, with what the file records of its machine, load and date under the table.
 
 A README holds a generated table between two markers::
 
@@ -23,9 +21,10 @@ A README holds a generated table between two markers::
     ...the command's output...
     <!-- end generated -->
 
-``check`` renders every block of the given READMEs (default: every ``README.md`` of the
-repository) again and exits 1 naming each block that differs; ``update`` rewrites them.
-Paths in a marker are relative to the repository root; run from there.
+``check`` renders every block of the given READMEs (default: every ``README.md`` and
+``README_*.md`` of the repository) again and exits 1 naming each block that differs;
+``update`` rewrites them. Paths in a marker are relative to the repository root; run from
+there.
 """
 
 from __future__ import annotations
@@ -61,14 +60,66 @@ def render_scores(path, tasks=None, methods=None, budget=None, include_stale=Fal
                                    _names(methods), label=label)
 
 
-def render_throughput(path) -> str:
-    """The task throughput table of the JSON file ``path`` (``benchmarks.tasks``)."""
-    from benchmarks import tasks
+#: The table kinds rendered from result files: kind -> (module, function, what the table
+#: is, how many files). ``function(*paths)`` returns the Markdown table of the files.
+FILE_KINDS = {
+    "throughput": ("benchmarks.tasks", "render_throughput_table",
+                   "the task throughput table of a benchmarks.tasks throughput JSON file", 1),
+    "task_speed": ("benchmarks.tasks", "render_speed_table",
+                   "the per-task step times at the default and the reference resolution "
+                   "(benchmarks.tasks --json records gathered in one JSON file)", 1),
+    "self_collision": ("benchmarks.cloth_self_collision", "render_table",
+                       "the cloth self-collision table of a benchmarks.cloth_self_collision "
+                       "JSONL file", 1),
+    "resolution": ("benchmarks.resolution", "render_table",
+                   "one row per task of resolution studies (benchmarks.tasks resolution "
+                   "JSON files)", "+"),
+    "physics_gpu_cpu": ("benchmarks.physics", "render_gpu_cpu_table",
+                        "the solver benchmarks on an accelerator beside a CPU (the "
+                        "accelerator's JSON lines, a side_by_side and a grad_over_forward "
+                        "document)", "+"),
+    "cloth_mesh": ("benchmarks.physics_cloth", "render_mesh_table",
+                   "the cloth mesh path's stencil against its scatter spring sum (a "
+                   "benchmarks.physics cloth-mesh JSONL file)", 1),
+    "cloth_sag": ("benchmarks.physics_cloth", "render_sag_table",
+                  "the hanging-cloth sag against resolution and substep (a benchmarks.physics "
+                  "cloth-sag-study JSON file)", 1),
+    "side_by_side": ("benchmarks.side_by_side", "render_table",
+                     "DaX beside the peer engines per scene (a benchmarks.side_by_side JSON "
+                     "file)", 1),
+    "scaling": ("benchmarks.scaling", "render_table",
+                "rollouts forward and backward per device count (benchmarks.scaling JSON "
+                "files)", "+"),
+    "apg_horizon": ("benchmarks.horizon_sweep", "render_table",
+                    "APG's gradient norm and score per backpropagation window "
+                    "(benchmarks.horizon_sweep JSONL files)", "+"),
+    "rl_speed": ("benchmarks.rl_speed", "render_table",
+                 "time per RL training update (a benchmarks.rl_speed JSONL file)", 1),
+    "il_speed": ("benchmarks.il_speed", "render_table",
+                 "Transporter's and ILD's training and inference cost (a "
+                 "benchmarks.il_speed JSONL file)", 1),
+    "ild_weighting": ("benchmarks.ild_weighting", "render_table",
+                      "ILD's score per state-distance weighting (a benchmarks.ild_weighting "
+                      "JSONL file)", 1),
+}
 
-    render = getattr(tasks, "render_throughput_table", None)
-    if render is None:
-        raise ValueError("benchmarks.tasks has no render_throughput_table yet")
-    text = render(Path(path))
+
+def render_file_kind(kind: str, paths) -> str:
+    """The table of ``kind`` (:data:`FILE_KINDS`) from the result files ``paths``."""
+    import importlib
+
+    module, function, _, _ = FILE_KINDS[kind]
+    render_fn = getattr(importlib.import_module(module), function, None)
+    if render_fn is None:
+        raise ValueError(f"{module} has no {function}")
+    try:
+        text = render_fn(*[Path(p) for p in paths])
+    except (KeyError, TypeError, IndexError, AttributeError) as err:  # a file of another kind
+        raise ValueError(f"{' '.join(map(str, paths))}: not a {kind} result file "
+                         f"({type(err).__name__}: {err})") from None
+    lines = text.splitlines()
+    if len(lines) < 3 or not lines[2].startswith("|"):
+        raise ValueError(f"{' '.join(map(str, paths))}: no {kind} rows in it")
     return text if text.endswith("\n") else text + "\n"
 
 
@@ -83,18 +134,16 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default=None, choices=("quick", "full"))
     s.add_argument("--include-stale", action="store_true",
                    help="count stale rows (marked †)")
-    t = sub.add_parser("throughput", help="the task throughput table of a benchmarks.tasks "
-                                          "JSON file")
-    t.add_argument("path")
-    c = sub.add_parser("self_collision", help="the cloth self-collision table of a "
-                                             "benchmarks.cloth_self_collision JSONL file")
-    c.add_argument("path")
+    for kind, (_, _, what, nargs) in FILE_KINDS.items():
+        k = sub.add_parser(kind, help=what)
+        k.add_argument("paths", nargs=nargs, metavar="FILE",
+                       help="result file(s), relative to the repository root or absolute")
     for name, what in (("check", "exit 1 if a README's generated block differs from what "
                                  "its command renders now"),
                        ("update", "rewrite every README's generated blocks")):
         c = sub.add_parser(name, help=what)
         c.add_argument("readmes", nargs="*", help="README files (default: every README.md "
-                                                  "of the repository)")
+                                                  "and README_*.md of the repository)")
     return p
 
 
@@ -104,20 +153,16 @@ def render(argv) -> str:
     if args.kind == "scores":
         return render_scores(args.path, args.tasks, args.methods, args.budget,
                              args.include_stale)
-    if args.kind == "throughput":
-        return render_throughput(args.path)
-    if args.kind == "self_collision":
-        from benchmarks import cloth_self_collision
-
-        return cloth_self_collision.render_table(Path(args.path))
+    if args.kind in FILE_KINDS:
+        return render_file_kind(args.kind, args.paths)
     raise ValueError(f"{args.kind} renders no table")
 
 
 def readmes(root: Path = ROOT) -> list[Path]:
-    """Every ``README.md`` under ``root`` (not in hidden, virtual-environment or build
-    directories), sorted."""
+    """Every ``README.md`` and ``README_*.md`` under ``root`` (not in hidden,
+    virtual-environment or build directories), sorted."""
     found = []
-    for path in sorted(root.rglob("README.md")):
+    for path in sorted({*root.rglob("README.md"), *root.rglob("README_*.md")}):
         rel = path.relative_to(root).parts[:-1]
         if not any(p in _SKIP or p.startswith(".") for p in rel):
             found.append(path)

@@ -399,3 +399,77 @@ def render_throughput_table(path) -> str:
 
 if __name__ == "__main__":
     main()
+
+
+def _sec(x: float | None) -> str:
+    """Seconds with two significant figures (trailing zeros kept), ``-`` when not
+    measured."""
+    return "-" if x is None else f"{x:#.2g}".rstrip(".")
+
+
+def _points(r: dict) -> str:
+    dt = f" × {r['scene_dt'] * 1e3:.3g} ms" if r.get("scene_dt") else ""
+    return f"{r['object_points']}, {r['substeps']}{dt}"
+
+
+def render_speed_table(path) -> str:
+    """The Markdown table of a speed document: ``main``'s JSON records (``records``: one
+    per task and resolution; ``pinned``: optional records timed with ``--clock process``
+    on one pinned core) gathered in one JSON file with its ``commands``, ``description``
+    and the ``uptime`` before each run. One row per task: its default resolution's step,
+    step-plus-gradient and batched step times [s, medians], its reference resolution's,
+    and DaXBench's own figures (:data:`DAXBENCH`, carried by each record) with DaXBench's
+    step time over the reference step's (above 1: this package is faster at equal
+    work)."""
+    from benchmarks._report import file_date, load_range, read_result
+
+    path, doc = read_result(path)
+    recs = doc["records"]
+    by = {(r["task"], r["resolution"]): r for r in recs}
+    tasks = list(dict.fromkeys(r["task"] for r in recs))
+    batches = sorted({b["batch"] for r in recs if r["resolution"] == "default"
+                      for b in r["batches"] if b["batch"] != 1})
+    head = (["task", "default: points, substeps × dt", "step [s]", "step + grad [s]"]
+            + [f"batch {b} step [s]" for b in batches]
+            + ["reference: points, substeps × dt", "step [s]", "step + grad [s]",
+               "DaXBench: points, substeps", "DaXBench step (grad) [s]",
+               "DaXBench / reference step"])
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+
+    def one(r, batch=1, key="step_s"):
+        row = next((b for b in (r or {}).get("batches", []) if b["batch"] == batch), None)
+        return None if row is None else row.get(key)
+
+    for t in tasks:
+        d, ref = by.get((t, "default")), by.get((t, "reference"))
+        dax = (d or ref or {}).get("daxbench") or {}
+        cells = [t, _points(d) if d else "-", _sec(one(d)), _sec(one(d, key="step_grad_s"))]
+        cells += [_sec(one(d, b)) for b in batches]
+        cells += [_points(ref) if ref else "-", _sec(one(ref)),
+                  _sec(one(ref, key="step_grad_s"))]
+        if dax:
+            grad = f" ({dax['grad_s']})" if dax.get("grad_s") else ""
+            ratio = f"{_sec(dax['step_s'] / one(ref))}×" if one(ref) else "-"
+            cells += [f"{dax['object_points']}, {dax['substeps']}",
+                      f"{dax['step_s']}{grad}", ratio]
+        else:
+            cells += ["-", "-", "-"]
+        lines.append("| " + " | ".join(cells) + " |")
+    loads = [float(m) for u in doc.get("uptime_before_each_run", {}).values()
+             for m in [u.split("load average:")[1].split(",")[0]] if "load average:" in u]
+    clock = {r.get("clock") or "wall" for r in recs}
+    device = {r.get("device") for r in recs} - {None}
+    lines += ["", f"Medians after an ahead-of-time compile, {'/'.join(sorted(clock))} clock, "
+              f"{', '.join(sorted(device)) or 'device not recorded'}; a batched step is "
+              f"the whole batch's call. 1-minute load average before the runs: "
+              f"{load_range(loads)}. {doc.get('description', '')} "
+              f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'}): "
+              + "; ".join(f"`{c}`" for c in doc.get("commands", [])) + "."]
+    pinned = doc.get("pinned") or []
+    if pinned:
+        lines += ["", "| pinned to one core, CPU time | resolution: points, substeps × dt | "
+                      "step [s] | step + grad [s] |", "| --- | --- | --- | --- |"]
+        for r in pinned:
+            lines.append(f"| {r['task']} | {r['resolution']}: {_points(r)} | "
+                         f"{_sec(one(r))} | {_sec(one(r, key='step_grad_s'))} |")
+    return "\n".join(lines) + "\n"

@@ -65,8 +65,113 @@ def test_the_throughput_kind_renders_with_benchmarks_tasks(monkeypatch, capsys, 
 
     seen = []
     monkeypatch.setattr(tasks, "render_throughput_table",
-                        lambda path: seen.append(path) or "| task |\n|---|", raising=False)
+                        lambda path: seen.append(path) or "| task |\n|---|\n| a |",
+                        raising=False)
     doc = tmp_path / "throughput.json"
     assert tables.main(["throughput", str(doc)]) == 0
-    assert seen == [doc] and capsys.readouterr().out == "| task |\n|---|\n"
-    assert tables.render(["throughput", str(doc)]) == "| task |\n|---|\n"
+    assert seen == [doc] and capsys.readouterr().out == "| task |\n|---|\n| a |\n"
+    assert tables.render(["throughput", str(doc)]) == "| task |\n|---|\n| a |\n"
+
+
+#: The README tables that are not measurements (module lists, options, budgets, file
+#: layouts, API verbs): the header row of each. Any other table must be a generated block.
+CONCEPT_TABLES = {
+    "| session | what it does |",
+    "| script | what it measures |",
+    "| module | what it is |",
+    "| name | module | uses simulator gradients | what it does |",
+    "| method | what one update is | defaults |",
+    "| method | quick (cloth) | quick (MPM tasks) | full (cloth) | full (MPM tasks) |",
+    "| method | quick (cloth) | quick (MPM tasks) | full |",
+    "| set | episodes | seeds | observations | tasks |",
+    "| attribute | content |",
+    "| path | dtype, shape | content |",
+    "| stage | what |",
+    "| kind | model | parameters (SI) |",
+    "| check | known answer |",
+    "| command | what |",
+    "| verb | MPM (`dax_physics.mpm`, also top level) | cloth (`dax_physics.cloth`) |",
+    "| function | what it does |",
+    "| parameter | unit | meaning |",
+    "| module | what it holds |",
+    "| | |",
+}
+
+
+def _hand_tables(text: str) -> list[str]:
+    """The header rows of the Markdown tables of ``text`` outside generated blocks and
+    code fences."""
+    heads, in_block, in_fence, in_table = [], False, False, False
+    for line in text.splitlines():
+        s = line.strip()
+        if s.startswith("```"):
+            in_fence = not in_fence
+        if line.startswith(tables.BEGIN):
+            in_block = True
+        elif line.startswith(tables.END):
+            in_block = False
+        is_row = s.startswith("|") and not in_block and not in_fence
+        if is_row and not in_table:
+            heads.append(s)
+        in_table = is_row
+    return heads
+
+
+def test_every_measurement_table_of_the_readmes_is_generated():
+    """A table typed by hand outside a generated block is one of the concept tables; a
+    new score or speed table must come from a result file (``python -m benchmarks.tables``)
+    or, if it is not a measurement, be added to CONCEPT_TABLES."""
+    stray = [(path.relative_to(tables.ROOT).as_posix(), head) for path in READMES
+             for head in _hand_tables(path.read_text()) if head not in CONCEPT_TABLES]
+    assert not stray, stray
+
+
+def test_every_file_kind_renders_a_readme_block_with_its_module_function():
+    import importlib
+
+    used = {argv[0] for path in READMES for _, argv in tables.blocks(path.read_text())}
+    for kind, (module, function, _, _) in tables.FILE_KINDS.items():
+        assert callable(getattr(importlib.import_module(module), function)), kind
+        assert kind in used, f"kind {kind} renders no README block"
+
+
+def test_a_file_kind_rejects_a_file_of_another_benchmark(tmp_path, capsys):
+    doc = tmp_path / "other.json"
+    doc.write_text('{"bench": "task"}\n')
+    for kind in tables.FILE_KINDS:
+        assert tables.main([kind, str(doc)]) == 2, kind
+        assert str(doc) in capsys.readouterr().err, kind
+
+
+def test_the_ild_weighting_table_states_its_standard_error_convention(tmp_path):
+    """One training seed: the SE over its evaluation rollouts, said so; several seeds: the
+    SE over the seeds (issue 37: learners' SE over training seeds)."""
+    import json
+
+    from benchmarks import ild_weighting
+
+    rec = {"task": "pour_water", "weighting": "flat", "config": {"weighting": "flat"},
+           "budget": "full", "env_steps": 30, "rollout_scores": [[0.5, 0.6], [0.7, 0.8]],
+           "rollout_se": 0.05, "loss_per_update": [1.0, 0.5], "nonfinite_grads": 0,
+           "seconds_per_seed": 3.0}
+    one = {**rec, "seeds": 1, "score_mean": 0.55, "score_se": float("nan"),
+           "rollout_scores": [[0.5, 0.6]]}
+    two = {**rec, "seeds": 2, "score_mean": 0.65, "score_se": 0.1}
+    for r, text in ((one, "over the 2 evaluation rollouts of its one training seed"),
+                    (two, "over its 2 training seeds")):
+        path = tmp_path / "w.jsonl"
+        path.write_text(json.dumps(r) + "\n")
+        table = ild_weighting.render_table(path)
+        assert text in table and "0.50" in table.splitlines()[2], table
+
+
+def test_result_files_are_read_as_json_or_json_lines(tmp_path):
+    from benchmarks._report import file_date, load_range, read_result
+
+    (tmp_path / "2026-01-02-a.json").write_text('{"x": 1}')
+    (tmp_path / "b.jsonl").write_text('{"x": 1}\n\n{"x": 2}\n')
+    assert read_result(tmp_path / "2026-01-02-a.json")[1] == {"x": 1}
+    assert read_result(tmp_path / "b.jsonl")[1] == [{"x": 1}, {"x": 2}]
+    assert file_date(tmp_path / "2026-01-02-a.json") == "2026-01-02"
+    assert file_date(tmp_path / "b.jsonl") is None
+    assert load_range([1.04, None, 2.96]) == "1.0-3.0" and load_range([]) == "not recorded"
