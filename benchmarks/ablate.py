@@ -46,11 +46,9 @@ import numpy as np
 
 import dax_tasks
 from benchmarks.rl_speed import parse_sets
-from dax_algos import learner as learner_mod
 from dax_algos import registry
 from dax_algos.bench import execute, report
 from dax_algos.method import BUDGETS
-from dax_algos.mlp_policy import ObsNorm, feature_dim
 from dax_tasks.io import atomic_write
 
 #: Per method: variant name -> config fields changed from the budget's. Names say the
@@ -90,11 +88,11 @@ def make_scorer(env, method, config):
 
 
 def untrained_policy(env, method, config, seed: int):
-    """The policy before training: the network's initial parameters from the seed's key
-    and the normaliser's initial statistics."""
-    net = method.learner.network(env, config)
-    return learner_mod.Policy(net.init(jax.random.fold_in(jax.random.PRNGKey(seed), 1)),
-                              ObsNorm.create(feature_dim(env)))
+    """The policy before training (:meth:`dax_algos.learner.Learner.untrained`): the
+    network's initial parameters drawn from the seed's key and the normaliser's initial
+    statistics."""
+    return method.learner.untrained(env, config,
+                                    jax.random.fold_in(jax.random.PRNGKey(seed), 1))
 
 
 def read_records(path) -> list[dict]:

@@ -14,7 +14,16 @@ from algos_helpers import cheap_cloth_overrides, register_nan_planner
 from dax_algos import registry
 from dax_algos.bench import episodes, grid, provenance, rundir, runner
 from dax_algos.bench.grid import Plan, run_grid
-from dax_algos.bench.rows import COLUMNS, OLD_COLUMNS, append_row, latest, make_row, read_rows
+from dax_algos.bench.rows import (
+    COLUMNS,
+    OLD_COLUMNS,
+    PROVENANCE_COLUMNS,
+    append_row,
+    latest,
+    make_row,
+    read_rows,
+    upgrade,
+)
 
 TASK = "fold_cloth1"
 
@@ -259,6 +268,24 @@ def test_the_demo_preset_gives_its_learner_a_config_that_builds():
 
 
 # ----------------------------------------------------------------------- old files
+
+def test_a_results_file_from_before_untrained_scores_reads_and_is_upgraded(tmp_path):
+    path = tmp_path / "results.csv"
+    _write(path, [], header=PROVENANCE_COLUMNS)
+    with open(path, "a") as f:
+        f.write(",".join(["fold_cloth1", "ppo", "0", "quick", "ok", "0.5"]
+                         + [""] * (len(PROVENANCE_COLUMNS) - 6)) + "\n")
+    (old,) = read_rows(path)
+    assert old["score"] == "0.5" and old["untrained_score"] == ""
+    upgrade(path, [old])
+    assert path.read_text().splitlines()[0] == ",".join(COLUMNS)
+    assert read_rows(path) == [old]
+    with open(path, "a") as f:  # an untrained score is a final-step r_gt too
+        f.write(",".join(["fold_cloth1", "ppo", "1", "quick", "ok", "0.5"]
+                         + [""] * (len(COLUMNS) - 7) + ["1.5"]) + "\n")
+    with pytest.raises(ValueError, match=r"line 3: untrained_score '1.5' is not in \[0, 1\]"):
+        read_rows(path)
+
 
 def test_a_results_file_from_before_provenance_reads_as_stale_and_is_upgraded(tmp_path):
     path = tmp_path / "results.csv"

@@ -10,7 +10,7 @@ import pytest
 from algos_helpers import cheap_cloth_overrides
 
 import dax_tasks
-from dax_algos import method, mlp_policy
+from dax_algos import method, mlp_policy, registry
 from dax_algos.bench import execute, learning, trained
 from dax_algos.bench.grid import run_grid
 
@@ -53,7 +53,25 @@ def test_rl_rows_curves_and_charts(grid):
                  key=lambda c: c["update"])
     assert [c["env_steps"] for c in ppo] == [16, 32, 48]
     assert (out / f"learning_{TASK}.png").stat().st_size > 1000
-    assert "| ppo |" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text()
+    assert "| ppo |" in md and "| ppo, untrained |" in md and "*untrained*" in md, md
+
+
+def test_each_learner_row_scores_its_untrained_policy_on_the_same_starts(grid):
+    """``untrained_score`` is the evaluation of the network at initialisation (drawn from
+    ``fold_in(key, 2)``) on the trained policy's evaluation starts."""
+    _, rows = grid
+    env = dax_tasks.make(TASK, cache_goal=False, **cheap_cloth_overrides(horizon=2))
+    m = registry.get("apg")
+    config = m.config("quick", TASK, **TINY["apg"])
+    lrn = m.learner
+    evaluate = lrn.make_evaluate(env, config, lrn.make_act(env, config))
+    key = jax.random.PRNGKey(1)
+    want = evaluate(lrn.untrained(env, config, jax.random.fold_in(key, 2)),
+                    jax.random.fold_in(key, 0), env.default_params).score
+    (row,) = [r for r in rows if r["method"] == "apg" and r["seed"] == "1"]
+    assert float(row["untrained_score"]) == pytest.approx(float(want), abs=1e-6)
+    assert all(0.0 <= float(r["untrained_score"]) <= 1.0 for r in rows)
 
 
 def test_seeds_differ(grid):

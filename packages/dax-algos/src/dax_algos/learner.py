@@ -9,7 +9,9 @@ evaluate (:func:`learner_episode`), the episode the runner calls for a learner.
   (:func:`dax_algos.rl.training.training_params`); evaluation uses the params the caller
   passes (the task's default has ``aux_weight = 0``: r_gt only).
 * **Evaluation** (:func:`make_evaluate`): ``n`` episodes of the deterministic policy from
-  ``n`` fresh starts; the score is the mean final-step r_gt.
+  ``n`` fresh starts; the score is the mean final-step r_gt. The untrained policy (the
+  same network at initialisation, :meth:`Learner.untrained`) is evaluated on the same
+  starts beside it, the baseline a learner must beat.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import dax_tasks
 
 from .actions import to_action
 from .episode import EpisodeOutput, PlanStats
-from .mlp_policy import ObsNorm, features
+from .mlp_policy import ObsNorm, feature_dim, features
 
 
 class Policy(NamedTuple):
@@ -130,6 +132,8 @@ class Learner:
     EpisodeOutput: the evaluation rollouts (default :func:`evaluate_features`).
     demo_spec(config) -> :class:`dax_algos.il.demos.DemoSpec` | None: the demonstrations
     ``train`` takes as ``data`` (default :func:`no_demonstrations`).
+    normalises_inputs: the policy carries an :class:`dax_algos.mlp_policy.ObsNorm` (the
+    MLP policies) or ``None`` (:meth:`untrained`).
     """
 
     make_train: Callable
@@ -138,15 +142,25 @@ class Learner:
     train_env_steps: Callable
     make_evaluate: Callable = evaluate_features
     demo_spec: Callable = no_demonstrations
+    normalises_inputs: bool = True
+
+    def untrained(self, env, config, key) -> Policy:
+        """A policy before training: the network's parameters at initialisation from
+        ``key`` and, for a policy that normalises its inputs, the normaliser's initial
+        statistics (zero mean, unit variance)."""
+        norm = ObsNorm.create(feature_dim(env)) if self.normalises_inputs else None
+        return Policy(self.network(env, config).init(key), norm)
 
 
 class LearnOutput(NamedTuple):
     """What a learner's episode returns: the evaluation (``episode``; its ``stats`` are
-    per training update), the learning curve and the trained policy."""
+    per training update), the learning curve, the trained policy and the untrained
+    policy's score on the same evaluation starts (``untrained_score``)."""
 
     episode: EpisodeOutput
     metrics: UpdateMetrics
     policy: object
+    untrained_score: jnp.ndarray
 
 
 def stats_from_metrics(m: UpdateMetrics) -> PlanStats:
@@ -162,15 +176,19 @@ def stats_from_metrics(m: UpdateMetrics) -> PlanStats:
 def learner_episode(learner: Learner, env, config) -> Callable:
     """``episode(key, params, *data) -> LearnOutput``: train from ``fold_in(key, 1)`` (with
     ``data``, e.g. demonstrations, for a method whose ``train`` takes them), then evaluate
-    from ``fold_in(key, 0)`` with ``params`` (the learner's ``make_evaluate``). Pure; the
-    runner jits it and calls it per seed."""
+    from ``fold_in(key, 0)`` with ``params`` (the learner's ``make_evaluate``), and the
+    untrained policy (:meth:`Learner.untrained` of ``fold_in(key, 2)``) on the same
+    starts. Pure; the runner jits it and calls it per seed."""
     train = learner.make_train(env, config)
     evaluate = learner.make_evaluate(env, config, learner.make_act(env, config))
 
     def episode(key, params, *data):
         policy, metrics = train(jax.random.fold_in(key, 1), params, *data)
-        out = evaluate(policy, jax.random.fold_in(key, 0), params)
+        start = jax.random.fold_in(key, 0)
+        out = evaluate(policy, start, params)
         out = out._replace(stats=stats_from_metrics(metrics))
-        return LearnOutput(out, metrics, policy)
+        untrained = evaluate(learner.untrained(env, config, jax.random.fold_in(key, 2)),
+                             start, params)
+        return LearnOutput(out, metrics, policy, untrained.score)
 
     return episode

@@ -181,8 +181,9 @@ def planner_result(env, t, m, s, budget, config, run, out, wall, compile_s) -> S
 
 
 def learner_result(env, t, m, s, budget, config, run, out, wall, compile_s) -> SeedResult:
-    """A learner's seed: its row, its learning curve (``wall_s`` prorated over the updates,
-    which all have the same shape), its first evaluation rollout and its trained policy
+    """A learner's seed: its row (with its untrained policy's score), its learning curve
+    (``wall_s`` prorated over the updates, which all have the same shape), its first
+    evaluation rollout and its trained policy
     (``policies/<task>/<method>/seed<k>.msgpack``, unless it is not finite)."""
     metrics = out.metrics
     n = len(metrics.env_steps)
@@ -201,5 +202,5 @@ def learner_result(env, t, m, s, budget, config, run, out, wall, compile_s) -> S
         policy = trained.trained_record(m, env, config, out.policy, seed=int(s),
                                         budget=budget)
     row = make_row(t, m, s, budget, wall_s=wall, compile_s=compile_s,
-                   **row_values(ep, run))
+                   untrained_score=float(out.untrained_score), **row_values(ep, run))
     return SeedResult(row, episode, curve, policy)

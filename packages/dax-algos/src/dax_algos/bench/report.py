@@ -73,6 +73,10 @@ def se_note(methods) -> str:
     return "Cells: " + "; ".join(parts) + ". (n=1): one seed, no standard error."
 
 
+UNTRAINED_NOTE = (" *untrained*: the learner's policy before training (its network at "
+                  "initialisation), on the same evaluation starts, over the same seeds.")
+
+
 def _kind(method: str) -> str:
     try:
         return "learner" if registry.get(method).family in ("rl", "il") else "episode"
@@ -80,11 +84,12 @@ def _kind(method: str) -> str:
         return "episode"
 
 
-def score_cell(rows, stale_marked: bool = False) -> str:
+def score_cell(rows, stale_marked: bool = False, col: str = "score") -> str:
     """The score of one (task, method)'s rows: mean ± SE of the finished seeds (``(n=1)``
     for one), with the failed and skipped runs counted; ``failed`` / ``n/a`` for none;
-    `` †`` appended when ``stale_marked`` (stale rows included)."""
-    ok = [as_float(r["score"]) for r in rows if r["status"] == "ok"]
+    `` †`` appended when ``stale_marked`` (stale rows included). ``col``: which score
+    (``untrained_score``: the learner's untrained policy, from the rows that have one)."""
+    ok = [as_float(r[col]) for r in rows if r["status"] == "ok" and r.get(col, "") != ""]
     failed = sum(r["status"] == "failed" for r in rows)
     skipped = sum(r["status"] == "skipped" for r in rows)
     if ok:
@@ -118,6 +123,7 @@ def score_lines(rows, tasks, methods, stale=None, include_stale=False) -> list[s
     groups = group_rows(counted(rows, stale, include_stale))
     lines = ["| method | " + " | ".join(md(t) for t in tasks) + " |",
              "|---|" + "---|" * len(tasks)]
+    note = se_note(methods)
     for m in methods:
         cells = []
         for t in tasks:
@@ -125,7 +131,12 @@ def score_lines(rows, tasks, methods, stale=None, include_stale=False) -> list[s
             marked = bool(rs and stale) and any(stale.get(key(r)) for r in rs)
             cells.append(score_cell(rs, marked) if rs else "")
         lines.append(f"| {md(m)} | " + " | ".join(cells) + " |")
-    note = se_note(methods)
+        untrained = [[r for r in groups.get((t, m), ()) if r.get("untrained_score", "") != ""]
+                     for t in tasks]
+        if any(untrained):
+            lines.append(f"| {md(m)}, untrained | " + " | ".join(
+                score_cell(rs, col="untrained_score") if rs else "" for rs in untrained) + " |")
+            note = se_note(methods) + UNTRAINED_NOTE
     if include_stale and stale and any(stale.get(key(r)) for r in rows):
         note += " †: includes stale rows (see below)."
     return [*lines, "", note]

@@ -27,11 +27,16 @@ from . import csvlog, provenance
 OLD_COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_distance",
                "wall_s", "compile_s", "env_steps", "backprop_steps", "grad_norm",
                "grad_norm_mean", "nonfinite_grads", "error")
-COLUMNS = (*OLD_COLUMNS, *provenance.COLUMNS, "previous_errors")
+#: the columns before learner rows carried their untrained policy's score
+PROVENANCE_COLUMNS = (*OLD_COLUMNS, *provenance.COLUMNS, "previous_errors")
+#: ``untrained_score``: a learner's untrained policy on the same evaluation starts (empty
+#: for a planner)
+COLUMNS = (*PROVENANCE_COLUMNS, "untrained_score")
 STATUSES = ("ok", "failed", "skipped")
 #: what a task or method name may be: it becomes a directory or file name
 NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,99}")
 _FLOATS = ("final_distance", "grad_norm", "grad_norm_mean")
+_SCORES = ("score", "untrained_score")
 _TIMES = ("wall_s", "compile_s")
 _COUNTS = ("env_steps", "backprop_steps", "nonfinite_grads")
 _DIGESTS = ("task_fingerprint", "spec_digest", "params_digest", "config_digest")
@@ -96,10 +101,11 @@ def check_row(row: Mapping) -> None:
         raise ValueError(f"budget {row['budget']!r} is not one of {', '.join(BUDGETS)}")
     if row["status"] not in STATUSES:
         raise ValueError(f"status {row['status']!r} is not one of {', '.join(STATUSES)}")
-    if row["score"] or row["status"] == "ok":
-        score = _float(row, "score")
-        if (row["status"] == "ok" or math.isfinite(score)) and not 0.0 <= score <= 1.0:
-            raise ValueError(f"score {row['score']!r} is not in [0, 1] (a final-step r_gt)")
+    for col in _SCORES:
+        if row[col] or (col == "score" and row["status"] == "ok"):
+            score = _float(row, col)
+            if (row["status"] == "ok" or math.isfinite(score)) and not 0.0 <= score <= 1.0:
+                raise ValueError(f"{col} {row[col]!r} is not in [0, 1] (a final-step r_gt)")
     for col in (*_FLOATS, *_TIMES):
         if row[col]:
             x = _float(row, col)
@@ -126,7 +132,8 @@ def check_row(row: Mapping) -> None:
 
 def read_rows(path: Path) -> list[dict]:
     """Every row of ``results.csv``, in file order, each with all of :data:`COLUMNS` (a
-    file with :data:`OLD_COLUMNS` reads with empty provenance). An incomplete last line,
+    file with :data:`OLD_COLUMNS` reads with empty provenance, one with
+    :data:`PROVENANCE_COLUMNS` with no untrained scores). An incomplete last line,
     from an interrupted write, is dropped from the file. A file that is not a results file
     (not UTF-8 text, other columns) is a ``ValueError`` naming it; a row that is not valid
     (:func:`check_row`; a row with too few or too many fields; a second row for a (task,
@@ -145,7 +152,7 @@ def read_rows(path: Path) -> list[dict]:
         raise garbled("not UTF-8 text") from None
     except csv.Error as err:
         raise garbled(f"bad CSV: {err}") from None
-    if tuple(header) not in (COLUMNS, OLD_COLUMNS):
+    if tuple(header) not in (COLUMNS, PROVENANCE_COLUMNS, OLD_COLUMNS):
         raise garbled(f"columns {header}, expected {list(COLUMNS)}")
     rows = _parse(path, text[:text.rfind("\n") + 1], header)
     csvlog.read_complete(path)  # a results file: cut the incomplete line off it now
@@ -183,9 +190,10 @@ def _parse(path: Path, text: str, header) -> list[dict]:
 
 
 def upgrade(path: Path, rows: list) -> None:
-    """Rewrite a results file of :data:`OLD_COLUMNS` with :data:`COLUMNS` (atomically; its
-    rows keep their values, their provenance stays empty), so that new rows can be
-    appended; nothing for a file that has them already."""
+    """Rewrite a results file of older columns (:data:`OLD_COLUMNS`,
+    :data:`PROVENANCE_COLUMNS`) with :data:`COLUMNS` (atomically; its rows keep their
+    values, the new columns stay empty), so that new rows can be appended; nothing for a
+    file that has them already."""
     path = Path(path)
     if csvlog.is_empty(path):
         return

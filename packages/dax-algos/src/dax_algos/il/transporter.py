@@ -523,4 +523,5 @@ def make_evaluate_on_pictures(env, config: TransporterConfig, act,
 
 LEARNER = Learner(make_train=make_train, make_act=make_act, network=network,
                   train_env_steps=train_env_steps, make_evaluate=make_evaluate_on_pictures,
+                  normalises_inputs=False,
                   demo_spec=demo_spec)
