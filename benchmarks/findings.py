@@ -1,0 +1,198 @@
+"""The benchmark's findings and the learners' bar, checked against a grid's result file.
+
+Two tables, each rendered from a grid directory's ``results.csv`` (the rows that count,
+:func:`dax_algos.bench.rows.latest`, of one budget, stale rows left out,
+:mod:`dax_algos.bench.provenance`):
+
+* :func:`render_findings`: for each finding of the original benchmark (:data:`FINDINGS`),
+  on each of its tasks where both methods have rows, whether each of its comparisons
+  holds: ``a > b`` holds when ``mean_a - mean_b > 2 SE``, ``a >= b`` when ``mean_a -
+  mean_b > -2 SE`` (``SE = sqrt(SE_a² + SE_b²)``, each the row kind's SE: learners over
+  training seeds, planners over episodes). A finding is *reproduced* when every comparison
+  holds on every task measured, *not reproduced* when one fails (the failing ones listed
+  with their numbers), *not measured* when no task has both methods' rows.
+* :func:`render_untrained`: for each learner and task, the trained score beside the
+  untrained policy's (``untrained_score``, the same seeds and evaluation starts) and their
+  paired difference over seeds: *above* (more than 2 SE), *below* (more than 2 SE below,
+  which the learners issue forbids) or *within*.
+
+    python -m benchmarks.tables findings benchmarks/results/GRID
+    python -m benchmarks.tables untrained benchmarks/results/GRID
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+CLOTH = ("fold_cloth1", "fold_cloth3", "fold_tshirt", "unfold_cloth1", "unfold_cloth3")
+MACRO = ("push_rope", *CLOTH)
+ALL = ("pour_water", "pour_soup", "push_rope", "whip_rope", *CLOTH)
+
+
+@dataclasses.dataclass(frozen=True)
+class Finding:
+    """A claim of the original benchmark: ``claims`` are ``(a, op, b)`` with ``op`` one of
+    ``>`` (a above b by more than 2 SE) and ``>=`` (a not below b by more than 2 SE),
+    checked on each of ``tasks``."""
+
+    name: str
+    text: str
+    tasks: tuple
+    claims: tuple
+
+
+FINDINGS = (
+    Finding("F1", "PPO ≥ APG and SHAC on the macro cloth tasks", CLOTH,
+            (("ppo", ">=", "apg"), ("ppo", ">=", "shac"))),
+    Finding("F2", "APG far above PPO on Whip-Rope, SHAC between", ("whip_rope",),
+            (("apg", ">", "ppo"), ("apg", ">", "shac"), ("shac", ">", "ppo"))),
+    Finding("F3", "Transporter on RGB above Transporter on height maps", MACRO,
+            (("transporter_rgb", ">", "transporter"),)),
+    Finding("F4", "ILD at or above Transporter on the macro tasks", MACRO,
+            (("ild", ">=", "transporter"),)),
+    Finding("F5", "diff-CEM-MPC ≥ CEM-MPC ≫ diff-MPC", ALL,
+            (("diff_cem_mpc", ">=", "cem_mpc"), ("cem_mpc", ">", "diff_mpc"))),
+)
+
+
+def _grid_rows(path, budget=None, include_stale=False):
+    """``(rows that count, budget, stale rows left out)`` of a grid directory or results
+    CSV: the latest row per run, of ``budget`` (default: the last row's), stale rows left
+    out unless ``include_stale``."""
+    import dax_tasks
+    from benchmarks._report import ROOT
+    from dax_algos.bench import provenance, rundir, summary
+    from dax_algos.bench.rows import latest, read_rows
+
+    path = Path(path)
+    full = path if path.is_absolute() or path.exists() else ROOT / path
+    csv_path = full if full.suffix == ".csv" else full / "results.csv"
+    if not csv_path.is_file():
+        raise ValueError(f"{path}: not a grid directory or results file (no {csv_path.name})")
+    rows = latest(read_rows(csv_path))
+    budget = summary.budgets(rows, budget)
+    run = rundir.read_run_file(csv_path.parent)
+    today = provenance.Today(
+        {t: rundir.overrides_from_json(t, o) for t, o in run.get("task_overrides", {}).items()
+         if t in dax_tasks.available()}, run.get("method_overrides", {}))
+    rows = [r for r in rows if r["budget"] == budget]
+    fresh = [r for r in rows if include_stale or not provenance.stale_reason(r, today)]
+    return fresh, budget, len(rows) - len(fresh)
+
+
+def _stats(rows, col="score"):
+    """``{(task, method): (mean, se, n)}`` over the ok rows' ``col``."""
+    from dax_algos.bench import report
+
+    out = {}
+    for (task, method), rs in report.group_rows(rows).items():
+        xs = [float(r[col]) for r in rs if r["status"] == "ok" and r.get(col, "") != ""]
+        if xs:
+            mean, se = report.mean_se(xs)
+            out[task, method] = (mean, 0.0 if math.isnan(se) else se, len(xs))
+    return out
+
+
+def check_claim(stats, task, a, op, b):
+    """``(holds, difference, se)`` of one comparison on one task, or ``None`` when one of
+    the two methods has no rows there."""
+    if (task, a) not in stats or (task, b) not in stats:
+        return None
+    ma, sa, _ = stats[task, a]
+    mb, sb, _ = stats[task, b]
+    diff, se = ma - mb, math.hypot(sa, sb)
+    holds = diff > 2 * se if op == ">" else diff > -2 * se
+    return holds, diff, se
+
+
+def findings(rows) -> list[dict]:
+    """Per finding: its verdict, the tasks measured and the comparisons that failed."""
+    stats = _stats(rows)
+    out = []
+    for f in FINDINGS:
+        measured, failed = [], []
+        for task in f.tasks:
+            checks = [(c, check_claim(stats, task, *c)) for c in f.claims]
+            if any(r is None for _, r in checks):
+                continue
+            measured.append(task)
+            failed += [(task, c, r) for c, r in checks if not r[0]]
+        verdict = ("not measured" if not measured else
+                   "not reproduced" if failed else "reproduced")
+        out.append({"finding": f, "measured": measured, "failed": failed,
+                    "verdict": verdict})
+    return out
+
+
+def render_findings(path, budget=None, include_stale=False) -> str:
+    """The findings table of the grid at ``path`` (see the module docstring)."""
+    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    lines = ["| finding | claim | tasks measured | verdict | where it fails (a − b ± SE) |",
+             "|---|---|---|---|---|"]
+    for f in findings(rows):
+        fails = "; ".join(f"{t}: {a} {op} {b}: {d:+.3f} ± {se:.3f}"
+                          for t, (a, op, b), (_, d, se) in f["failed"])
+        lines.append(f"| {f['finding'].name} | {f['finding'].text} | "
+                     f"{', '.join(f['measured']) or '—'} | {f['verdict']} | {fails or '—'} |")
+    lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
+              + (f", {n_stale} stale rows left out" if n_stale else "") + ". `a > b`: a above "
+              "b by more than 2 SE; `a ≥ b`: a not below b by more than 2 SE (SE of the "
+              "difference from each row kind's SE: learners over training seeds, planners "
+              "over episodes)."]
+    return "\n".join(lines) + "\n"
+
+
+def versus_untrained(rows) -> list[dict]:
+    """Per (task, learner) with untrained scores: trained and untrained mean ± SE over
+    seeds, the paired difference and its SE, and the verdict (above / within / below)."""
+    from dax_algos.bench import report
+
+    runs: dict = {}
+    for r in rows:
+        if r["status"] == "ok" and r.get("untrained_score", "") != "":
+            runs.setdefault((r["task"], r["method"]), []).append(
+                (float(r["score"]), float(r["untrained_score"])))
+    out = []
+    for (task, method), pairs in runs.items():
+        x = np.asarray(pairs, np.float64)
+        (m, s), (mu, su), (d, sd) = (report.mean_se(x[:, 0]), report.mean_se(x[:, 1]),
+                                     report.mean_se(x[:, 0] - x[:, 1]))
+        sd = 0.0 if math.isnan(sd) else sd
+        verdict = ("above" if d > 2 * sd and len(x) > 1 else
+                   "below" if d < -2 * sd and len(x) > 1 else "within")
+        out.append({"task": task, "method": method, "n": len(x), "trained": (m, s),
+                    "untrained": (mu, su), "difference": (d, sd), "verdict": verdict})
+    return out
+
+
+def render_untrained(path, budget=None, include_stale=False) -> str:
+    """The learners-against-their-untrained-policy table of the grid at ``path``."""
+    import dax_tasks
+    from dax_algos import registry
+
+    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    found = versus_untrained(rows)
+    order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
+    methods = {m: i for i, m in enumerate(registry.names())}
+    found.sort(key=lambda f: (methods.get(f["method"], 99), order.get(f["task"], 99)))
+
+    def cell(ms):
+        m, s = ms
+        return f"{m:.3f} ± {s:.3f}" if not math.isnan(s) else f"{m:.3f} (n=1)"
+
+    lines = ["| method | task | seeds | trained | untrained | trained − untrained | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for f in found:
+        lines.append(f"| {f['method']} | {f['task']} | {f['n']} | {cell(f['trained'])} | "
+                     f"{cell(f['untrained'])} | {cell(f['difference'])} | {f['verdict']} |")
+    counts = {v: sum(f["verdict"] == v for f in found) for v in ("above", "within", "below")}
+    lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
+              + (f", {n_stale} stale rows left out" if n_stale else "")
+              + f": {counts['above']} above, {counts['within']} within, {counts['below']} "
+              "below. Mean ± SE over training seeds; the difference is paired by seed (the "
+              "same evaluation starts); above / below: by more than 2 SE."]
+    return "\n".join(lines) + "\n"

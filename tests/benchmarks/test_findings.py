@@ -1,0 +1,71 @@
+"""The findings and untrained-policy tables (``benchmarks/findings.py``) on a grid written
+for the test: each comparison's verdict follows its 2-SE rule, a finding with a failing
+comparison lists it with its numbers, and a learner is above / within / below its
+untrained policy by the paired difference over seeds."""
+
+import pytest
+
+from benchmarks import findings
+from dax_algos.bench.rows import append_row, make_row
+
+
+def _grid(tmp_path, scores):
+    """A results.csv of ``{(task, method): [score or (score, untrained), ...]}`` (one row
+    per seed)."""
+    path = tmp_path / "results.csv"
+    for (task, method), values in scores.items():
+        for seed, v in enumerate(values):
+            score, untrained = v if isinstance(v, tuple) else (v, "")
+            append_row(path, make_row(task, method, seed, "full", status="ok", score=score,
+                                      untrained_score=untrained))
+    return tmp_path
+
+
+def test_findings_follow_the_two_standard_error_rule(tmp_path):
+    grid = _grid(tmp_path, {
+        # F2 on whip_rope: APG 0.6 > SHAC 0.45 > PPO 0.3, each SE 0.006: reproduced
+        ("whip_rope", "apg"): [0.59, 0.60, 0.61], ("whip_rope", "shac"): [0.44, 0.45, 0.46],
+        ("whip_rope", "ppo"): [0.29, 0.30, 0.31],
+        # F1 on fold_cloth1: PPO 0.40 vs APG 0.50 (SE 0.01 / sqrt(3) each): PPO >= APG fails
+        ("fold_cloth1", "ppo"): [0.39, 0.40, 0.41], ("fold_cloth1", "apg"): [0.49, 0.50, 0.51],
+        ("fold_cloth1", "shac"): [0.39, 0.40, 0.41],
+    })
+    out = {f["finding"].name: f for f in findings.findings(
+        findings._grid_rows(grid, include_stale=True)[0])}
+    assert out["F2"]["verdict"] == "reproduced" and out["F2"]["measured"] == ["whip_rope"]
+    assert out["F1"]["verdict"] == "not reproduced"
+    ((task, claim, (holds, diff, se)),) = out["F1"]["failed"]
+    assert (task, claim, holds) == ("fold_cloth1", ("ppo", ">=", "apg"), False)
+    assert diff == pytest.approx(-0.10) and se == pytest.approx(0.01 * (2 / 3) ** 0.5)
+    assert out["F3"]["verdict"] == "not measured"
+    table = findings.render_findings(grid, include_stale=True)
+    assert "fold_cloth1: ppo >= apg: -0.100 ± 0.008" in table, table
+
+
+def test_a_tie_within_two_standard_errors_is_at_or_above_not_above(tmp_path):
+    stats = {("t", "a"): (0.50, 0.02, 5), ("t", "b"): (0.52, 0.02, 5)}
+    assert findings.check_claim(stats, "t", "a", ">=", "b")[0]
+    assert not findings.check_claim(stats, "t", "a", ">", "b")[0]
+    assert findings.check_claim(stats, "t", "a", ">", "c") is None
+
+
+def test_learners_against_their_untrained_policy_are_paired_by_seed(tmp_path):
+    grid = _grid(tmp_path, {
+        ("fold_cloth1", "apg"): [(0.45, 0.35), (0.52, 0.41), (0.40, 0.31)],  # +0.10 steady
+        ("fold_cloth1", "ppo"): [(0.30, 0.40), (0.31, 0.40), (0.29, 0.40)],  # -0.10: below
+        ("fold_cloth1", "shac"): [(0.50, 0.40), (0.30, 0.40), (0.40, 0.40)],  # 0 ± 0.058
+        ("fold_cloth1", "random"): [0.4, 0.4],  # a planner: no untrained score
+    })
+    out = {f["method"]: f for f in findings.versus_untrained(
+        findings._grid_rows(grid, include_stale=True)[0])}
+    assert set(out) == {"apg", "ppo", "shac"}
+    assert out["apg"]["verdict"] == "above"
+    assert out["apg"]["difference"][0] == pytest.approx(0.10)
+    assert out["ppo"]["verdict"] == "below" and out["shac"]["verdict"] == "within"
+    table = findings.render_untrained(grid, include_stale=True)
+    assert "1 above, 1 within, 1 below" in table, table
+
+
+def test_a_path_without_results_is_refused_naming_it(tmp_path):
+    with pytest.raises(ValueError, match="no results.csv"):
+        findings.render_findings(tmp_path / "nothing")
