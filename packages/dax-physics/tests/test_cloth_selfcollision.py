@@ -143,19 +143,22 @@ def _folded(n=8, size=0.2):
 
 
 def test_list_is_rebuilt_after_half_the_skin_and_stays_exact_in_between():
-    """A vertex moved by 0.4 skin keeps the list (pairs within h still all listed); by 0.6
-    skin the list is rebuilt; along a rollout the listed pairs within h are those of all
-    pairs at every checked substep."""
+    """A vertex moved by 0.8 skin (0.4 skin from the middle of all displacements) keeps the
+    list (pairs within h still all listed); by 1.2 skin (0.6) the list is rebuilt; the
+    whole cloth carried 10 skins keeps it; along a rollout the listed pairs within h are
+    those of all pairs at every checked substep."""
     cl, x, h = _folded()
     cfg = c.ClothConfig(dt=2e-4, thickness=h, self_stiffness=5.0, self_friction=1e-3)
     nbrs = sc.neighbour_list(cfg, cl, x)
     update = jax.jit(sc.update_neighbours, static_argnums=0)
     skin = sc.skin(cfg)
-    for frac, rebuilt in ((0.4, False), (0.6, True)):
+    for frac, rebuilt in ((0.8, False), (1.2, True)):
         moved = x.at[5].add(jnp.asarray([frac * skin, 0.0, 0.0]))
         new = update(cfg, cl, nbrs, moved)
         assert int(new.builds) == 1 + rebuilt, f"moved {frac} skin: builds {int(new.builds)}"
         assert _close(new, moved, h) == _pairs_within(moved, cl.rest_pos, h, h)
+    carried = x + jnp.asarray([10 * skin, -4 * skin, 3 * skin])
+    assert int(update(cfg, cl, nbrs, carried).builds) == 1, "a carried cloth was rebuilt"
     st = c.ClothState.create(cl, x=x, cfg=cfg).replace(
         v=jnp.zeros_like(x).at[:, 2].set(-0.5))
     step = jax.jit(lambda s: c.rollout(cfg, cl, s, 25))

@@ -7,11 +7,13 @@ The force of a pair (:func:`_pair_force`) is the same whichever way the pairs ar
   every pair closer than the cutoff ``r = h + skin`` whose rest distance exceeds
   ``self_exclude * h`` (mesh neighbours never repel) and stores it once, ``i < j``, in a
   static number of pair slots, with the number of pairs it could not store. The list is
-  rebuilt only when some vertex has moved more than ``skin / 2`` since the last build
-  (:func:`update_neighbours`): until then a pair closer than h was closer than
-  ``h + skin`` at the build (each of its two vertices moved at most ``skin / 2``), so the
-  list holds every pair all-pairs finds within h while its overflow is 0. A substep's
-  force costs the stored pairs' slots (in tiers of slots, :func:`_tier_sizes`), not V^2.
+  rebuilt only when some vertex has moved more than ``skin / 2`` since the last build,
+  relative to a displacement c common to all (the middle of the displacements' range,
+  per component; :func:`update_neighbours`): until then a pair closer than h was closer
+  than ``h + skin`` at the build (its separation changed by ``|(d_i - c) - (d_j - c)| <=
+  skin``), so the list holds every pair all-pairs finds within h while its overflow is
+  0; a cloth carried as a whole keeps its list. A substep's force costs the stored
+  pairs' slots (in tiers of slots, :func:`_tier_sizes`), not V^2.
   The build is a cell search: cells of side r, so a pair within r lies in neighbouring
   cells; each vertex examines the 27 cells around its own, ``self_candidates`` vertices
   per cell at most. Where that is more work than testing all pairs (:func:`uses_cells`)
@@ -85,8 +87,11 @@ def pair_capacity(cfg, n_vertices: int) -> int:
 
 def _tier_sizes(capacity: int) -> tuple:
     """Slot counts the force is evaluated over: the smallest tier holding all stored pairs
-    is used (P / 16, P / 4 and P, multiples of 8)."""
-    sizes = {max(8, 8 * math.ceil(capacity / (8 * div))) for div in (16, 4)}
+    is used (P, P / 2, P / 4, ... down to 8, multiples of 8)."""
+    sizes, div = set(), 2
+    while capacity / div >= 8:
+        sizes.add(8 * math.ceil(capacity / (8 * div)))
+        div *= 2
     return tuple(sorted(s for s in sizes if s < capacity)) + (capacity,)
 
 
@@ -274,13 +279,17 @@ def neighbour_list(cfg, cloth, x) -> NeighbourList:
 
 
 def update_neighbours(cfg, cloth, nbrs: NeighbourList, x) -> NeighbourList:
-    """``nbrs`` if no vertex has moved more than ``skin / 2`` from ``nbrs.x_ref``, else a
-    new list at ``x`` (its ``overflow`` the larger of the old and the new, ``builds`` one
-    more). Under ``vmap`` the batch rebuilds once if any member must (a ``lax.cond``)."""
+    """``nbrs`` if no vertex has moved more than ``skin / 2`` from ``nbrs.x_ref`` relative
+    to the middle of all vertices' displacements (per component, the midpoint of their
+    smallest and largest), else a new list at ``x`` (its ``overflow`` the larger of the
+    old and the new, ``builds`` one more). Under ``vmap`` the batch rebuilds once if any
+    member must (a ``lax.cond``)."""
     x = jax.lax.stop_gradient(x)
     half = 0.5 * skin(cfg)
-    d = [x[:, c] - nbrs.x_ref[:, c] for c in range(3)]
-    moved = jnp.any(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > half * half)
+    dt = x.T - nbrs.x_ref.T  # (3, V): displacements since the build
+    hi = jnp.max(jnp.concatenate([dt, -dt]), axis=1, keepdims=True)
+    d = dt - 0.5 * (hi[:3] - hi[3:])  # less the middle of their range
+    moved = jnp.any(jnp.sum(d * d, axis=0) > half * half)
 
     def rebuild(old):
         new = neighbour_list(cfg, cloth, x)
@@ -328,14 +337,18 @@ def _all_pairs_forces(cfg, cloth, xt, vt):
 
 def _listed_pairs_forces(cfg, pairs, xt, vt):
     """Forces (3, V) of the pairs ``(2, n)``: each pair's force is computed once and added
-    to i and subtracted from j (one scatter); ``(0, 0)`` slots exert none."""
+    to i and subtracted from j (one scatter of rows); ``(0, 0)`` slots exert none. Both
+    ends read their position and velocity as one row of a (V, 8) array."""
     V = xt.shape[1]
     i, j = pairs[0], pairs[1]
-    d = [xt[c][i] - xt[c][j] for c in range(3)]
-    dv = [vt[c][i] - vt[c][j] for c in range(3)]
-    f = jnp.stack(_pair_force(cfg, d, dv, i != j))
-    both = jnp.concatenate([f, -f], axis=1)
-    return jax.ops.segment_sum(both.T, jnp.concatenate([i, j]), V).T
+    xv = jnp.concatenate([xt, vt, jnp.zeros_like(xt[:2])]).T  # (V, 8): x, v, padding
+    g = xv[i] - xv[j]  # (n, 8)
+    f = _pair_force(cfg, [g[:, c] for c in range(3)], [g[:, 3 + c] for c in range(3)],
+                    i != j)
+    f = jnp.stack(f + [jnp.zeros_like(f[0])], axis=1)  # (n, 4)
+    out = jnp.zeros((V, 4), xt.dtype).at[jnp.concatenate([i, j])].add(
+        jnp.concatenate([f, -f]))
+    return out[:, :3].T
 
 
 def _list_forces(cfg, nbrs: NeighbourList, xt, vt):
