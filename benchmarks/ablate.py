@@ -15,7 +15,8 @@ changes a field in every variant, the baseline included). Per (variant, seed) on
   ``grad_norm``: per update, the raw (unclipped) global norm of the policy gradient;
 * ``wall_s`` (training and evaluation of the seed, compiled), ``compile_s``,
   ``env_steps`` and ``env_steps_per_s`` (training env steps over ``wall_s``), the 1-minute
-  load average before the seed.
+  load average before the seed, and ``provenance``: what the runner's rows record of the
+  code, task and config (:func:`dax_algos.bench.provenance.of_run`).
 
 Summary lines (``"summary": true``), per variant: mean ± SE over seeds of the score and
 of the untrained score, and the paired difference from the baseline (same seeds) with its
@@ -47,7 +48,7 @@ import numpy as np
 import dax_tasks
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
-from dax_algos.bench import execute, report
+from dax_algos.bench import execute, provenance, report
 from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
 
@@ -129,10 +130,11 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
     compiled = jax.jit(run.episode).lower(jax.random.PRNGKey(0), params, *data).compile()
     compile_s = time.perf_counter() - t0
     score = make_scorer(env, method, config)
+    prov = provenance.of_run(env, config)  # what the runner's rows record of the code
     for seed in seeds:
         rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
                "changes": changes, "sets": sets, "seed": seed,
-               "load_1min": round(os.getloadavg()[0], 2)}
+               "load_1min": round(os.getloadavg()[0], 2), "provenance": prov}
         t0 = time.perf_counter()
         out = jax.device_get(jax.block_until_ready(
             compiled(jax.random.PRNGKey(seed), params, *data)))
@@ -188,9 +190,17 @@ def summarise(records: list[dict]) -> list[dict]:
                     "untrained_se": use, "minus_baseline": dmean,
                     "minus_baseline_se": dse,
                     "better": bool(len(paired) > 1 and dmean > 2 * dse),
+                    "grad_norm_median": _median_norm(runs.values()),
                     "env_steps_per_s": float(np.mean([r["env_steps_per_s"]
                                                       for r in runs.values()]))})
     return out
+
+
+def _median_norm(runs) -> float | None:
+    """The median raw policy-gradient norm over every update of ``runs`` (None where none
+    was recorded, e.g. PPO's is not a simulator gradient)."""
+    norms = [g for r in runs for g in r.get("grad_norm") or () if g is not None]
+    return float(np.median(norms)) if norms else None
 
 
 def chart(records: list[dict], summaries: list[dict], path) -> Path:
@@ -239,6 +249,50 @@ def write(path, records: list[dict]) -> list[dict]:
     summaries = [_json_safe(s) for s in summarise(records)]
     atomic_write(path, "".join(json.dumps(r) + "\n" for r in records + summaries))
     return summaries
+
+
+def render_table(*paths) -> str:
+    """The Markdown table of ablation files (their summary lines, recomputed from the seed
+    records): per method, task and variant, the change, the evaluation score and the
+    untrained policy's (mean ± SE over seeds), the paired difference from the baseline
+    and whether the change is kept."""
+    from benchmarks._report import load_range, read_result
+
+    lines = ["| method | task | variant | change | seeds | score | untrained | "
+             "− baseline (paired) | kept | gradient norm |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    loads, names = [], []
+    for path in paths:
+        _, records = read_result(path)
+        seeds = [r for r in records if not r.get("summary")]
+        if not seeds or "variant" not in seeds[0]:
+            raise KeyError("variant")
+        loads += [r["load_1min"] for r in seeds if "load_1min" in r]
+        names.append(Path(path).as_posix())
+
+        def pm(m, se):
+            return "—" if m is None else (f"{m:.3f} ± {se:.3f}" if se is not None
+                                           else f"{m:.3f} (n=1)")
+
+        for s in [_json_safe(x) for x in summarise(seeds)]:
+            change = ", ".join(f"{k}={v}" for k, v in s["changes"].items()) or "—"
+            kept = "baseline" if s["variant"] == "baseline" else (
+                "yes" if s["better"] else "no")
+            g = s["grad_norm_median"]
+            norm = "—" if g is None else f"{g:.2g}"
+            lines.append(
+                f"| {s['method']} | {s['task']} | {s['variant']} | {change} | "
+                f"{len(s['seeds'])} | {pm(s['score_mean'], s['score_se'])} | "
+                f"{pm(s['untrained_mean'], s['untrained_se'])} | "
+                f"{pm(s['minus_baseline'], s['minus_baseline_se'])} | {kept} | {norm} |")
+    lines += ["", f"From {', '.join(f'`{n}`' for n in names)} (`python -m benchmarks.ablate`; "
+              f"{seeds[0]['budget']} budgets; 1-minute load {load_range(loads)}, 2 CPU "
+              "cores). Score: the trained policy's mean final-step r_gt over its evaluation "
+              "rollouts, mean ± SE over training seeds; untrained: the same network at "
+              "initialisation on the same starts; a change is kept only where it beats the "
+              "baseline by more than 2 SE of the difference paired by seed. Gradient norm: "
+              "the median raw (unclipped) policy-gradient norm over every update and seed."]
+    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
