@@ -223,10 +223,14 @@ def chart(records: list[dict], summaries: list[dict], path) -> Path:
         ax.plot([i - 0.15] * len(seeds), seeds, "k.", alpha=0.5)
         curves = [r["curve"] for r in records
                   if r["variant"] == s["variant"] and r["status"] == "ok" and r["curve"]]
-        if curves:
+        if curves:  # an update in which no episode ended has no point (None)
             n = min(len(c) for c in curves)
-            mean = np.nanmean(np.asarray([c[:n] for c in curves], np.float64), 0)
-            ax2.plot(np.arange(n), mean, color=f"C{i}", label=s["variant"])
+            arr = np.asarray([[np.nan if x is None else x for x in c[:n]] for c in curves],
+                             np.float64)
+            ended = np.isfinite(arr).any(0)
+            if ended.any():
+                ax2.plot(np.arange(n)[ended], np.nanmean(arr[:, ended], 0), ".-",
+                         color=f"C{i}", label=s["variant"])
     ax.set_xticks(range(len(names)), names, rotation=20)
     ax.set_ylabel("evaluation score (final-step r_gt)")
     ax.set_title("filled: trained, mean ± SE over seeds; hollow: untrained", fontsize=9)
