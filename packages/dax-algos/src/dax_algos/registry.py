@@ -72,7 +72,10 @@ IL_BUDGETS = {
     # budget below num_envs * horizon still runs one update
     "ild": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=3e-4, n_eval=4),
             "quick_heavy": dict(total_env_steps=1, num_envs=2, window=4, n_eval=2),
-            "full": dict(total_env_steps=480, num_envs=4, learning_rate=3e-4),
+            # the demonstration moved onto each start on the cloth tasks (their distance
+            # aligns the goal to the cloth; measured better, benchmarks.ablate)
+            "full": dict(total_env_steps=480, num_envs=4, learning_rate=3e-4,
+                         align="start"),
             "full_heavy": dict(total_env_steps=1000, num_envs=2, window=10)},
 }
 
