@@ -98,6 +98,15 @@ FILE_KINDS = {
     "il_speed": ("benchmarks.il_speed", "render_table",
                  "Transporter's and ILD's training and inference cost (a "
                  "benchmarks.il_speed JSONL file)", 1),
+    "findings": ("benchmarks.findings", "render_findings",
+                 "the original benchmark's findings checked against a grid directory's "
+                 "results.csv", 1),
+    "untrained": ("benchmarks.findings", "render_untrained",
+                  "each learner against its untrained policy, from a grid directory's "
+                  "results.csv", 1),
+    "ablation": ("benchmarks.ablate", "render_table",
+                 "learner ablations: each variant against the baseline, paired by seed "
+                 "(benchmarks.ablate JSONL files)", "+"),
     "ild_weighting": ("benchmarks.ild_weighting", "render_table",
                       "ILD's score per state-distance weighting (a benchmarks.ild_weighting "
                       "JSONL file)", 1),
