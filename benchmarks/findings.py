@@ -63,7 +63,6 @@ def _grid_rows(path, budget=None, include_stale=False):
     """``(rows that count, budget, stale rows left out)`` of a grid directory or results
     CSV: the latest row per run, of ``budget`` (default: the last row's), stale rows left
     out unless ``include_stale``."""
-    import dax_tasks
     from benchmarks._report import ROOT
     from dax_algos.bench import provenance, rundir, summary
     from dax_algos.bench.rows import latest, read_rows
@@ -75,10 +74,7 @@ def _grid_rows(path, budget=None, include_stale=False):
         raise ValueError(f"{path}: not a grid directory or results file (no {csv_path.name})")
     rows = latest(read_rows(csv_path))
     budget = summary.budgets(rows, budget)
-    run = rundir.read_run_file(csv_path.parent)
-    today = provenance.Today(
-        {t: rundir.overrides_from_json(t, o) for t, o in run.get("task_overrides", {}).items()
-         if t in dax_tasks.available()}, run.get("method_overrides", {}))
+    today = summary.today_of(rundir.read_run_file(csv_path.parent))
     rows = [r for r in rows if r["budget"] == budget]
     fresh = [r for r in rows if include_stale or not provenance.stale_reason(r, today)]
     return fresh, budget, len(rows) - len(fresh)

@@ -31,10 +31,9 @@ def write_reports(rows, out: Path, budget: str, make_env=None, include_stale: bo
     task overrides recorded in ``run.json``)."""
     rows = [r for r in latest(rows) if r["budget"] == budget]
     run = rundir.read_run_file(out)
-    overrides = {t: rundir.overrides_from_json(t, o)
-                 for t, o in run.get("task_overrides", {}).items() if t in dax_tasks.available()}
+    overrides = task_overrides_of(run)
     if today is None:
-        today = provenance.Today(overrides, run.get("method_overrides", {}))
+        today = today_of(run)
     stale = {key(r): provenance.stale_reason(r, today) for r in rows}
     shown = [r for r in rows if include_stale or not stale[key(r)]]
     title = f"DaX benchmark ({budget} budget)"
@@ -65,6 +64,20 @@ def write_reports(rows, out: Path, budget: str, make_env=None, include_stale: bo
                            stale=stale, include_stale=include_stale)
 
 
+def task_overrides_of(run: dict) -> dict:
+    """``{task: overrides}`` a run file (``run.json``) records, for the tasks this
+    installation has."""
+    return {t: rundir.overrides_from_json(t, o)
+            for t, o in run.get("task_overrides", {}).items() if t in dax_tasks.available()}
+
+
+def today_of(run: dict) -> provenance.Today:
+    """What a row of the run recorded in ``run`` (``run.json``) is checked against to be
+    current (:func:`dax_algos.bench.provenance.stale_reason`): today's code with the run's
+    task and method overrides."""
+    return provenance.Today(task_overrides_of(run), run.get("method_overrides", {}))
+
+
 def _references(rows) -> dict:
     """``{task: {method: mean score}}`` of the reference rows (random, expert) that ran."""
     refs: dict = {}
@@ -92,9 +105,7 @@ def markdown_tables(out, budget: str | None = None, include_stale: bool = False,
     rows = [r for r in rows if r["budget"] == budget and (tasks is None or r["task"] in tasks)
             and (methods is None or r["method"] in methods)]
     run = rundir.read_run_file(csv_path.parent) if out.suffix != ".csv" else {}
-    today = provenance.Today(
-        {t: rundir.overrides_from_json(t, o) for t, o in run.get("task_overrides", {}).items()
-         if t in dax_tasks.available()}, run.get("method_overrides", {}))
+    today = today_of(run)
     stale = {key(r): provenance.stale_reason(r, today) for r in rows}
     tasks = list(tasks) if tasks else _order(dax_tasks.TASKS, rows, "task")
     methods = list(methods) if methods else _order(registry.names(), rows, "method")
