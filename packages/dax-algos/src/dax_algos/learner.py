@@ -185,10 +185,14 @@ def learner_episode(learner: Learner, env, config) -> Callable:
     def episode(key, params, *data):
         policy, metrics = train(jax.random.fold_in(key, 1), params, *data)
         start = jax.random.fold_in(key, 0)
-        out = evaluate(policy, start, params)
+        untrained = learner.untrained(env, config, jax.random.fold_in(key, 2))
+        # both policies through one traced evaluation (a two-step lax.map, run one after
+        # the other as before): the rollout is compiled once, not twice
+        untrained = jax.tree.map(lambda u, t: u.astype(t.dtype), untrained, policy)
+        both = jax.tree.map(lambda t, u: jnp.stack([t, u]), policy, untrained)
+        outs = jax.lax.map(lambda p: evaluate(p, start, params), both)
+        out = jax.tree.map(lambda x: x[0], outs)
         out = out._replace(stats=stats_from_metrics(metrics))
-        untrained = evaluate(learner.untrained(env, config, jax.random.fold_in(key, 2)),
-                             start, params)
-        return LearnOutput(out, metrics, policy, untrained.score)
+        return LearnOutput(out, metrics, policy, outs.score[1])
 
     return episode
