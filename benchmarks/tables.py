@@ -104,6 +104,9 @@ FILE_KINDS = {
     "untrained": ("benchmarks.findings", "render_untrained",
                   "each learner against its untrained policy, from a grid directory's "
                   "results.csv", 1),
+    "budgets": ("benchmarks.budgets", "render_table",
+                "each learner's budget per task and whether its learning curve has "
+                "flattened, from a grid directory's results and learning curves", 1),
     "ablation": ("benchmarks.ablate", "render_table",
                  "learner ablations: each variant against the baseline, paired by seed "
                  "(benchmarks.ablate JSONL files)", "+"),

@@ -1,0 +1,137 @@
+"""Are the learners' budgets enough? Each (learner, task)'s learning curve, read off a grid.
+
+    python -m benchmarks.tables budgets benchmarks/results/GRID
+
+For every learner and task of a grid directory (its rows that count, of one budget, stale
+rows left out: :func:`benchmarks.findings._grid_rows`) the table gives what the budget is
+(environment steps and updates per training seed, the training wall time on the grid's
+machine) and whether the curve has flattened by its end:
+
+* the curve is ``learning_<task>.csv`` (:mod:`dax_algos.bench.learning`): per update, the
+  mean final-step r_gt of the training episodes that ended in it (the behaviour policy,
+  with PPO's exploration noise; the only per-update score a run records);
+* per seed, ``Δ`` = the curve's mean over the last fifth of the updates minus its mean over
+  the fifth before (updates with no finished episode left out); the table's ``Δ`` is the
+  mean over seeds;
+* the verdict compares ``Δ`` with the SE (over training seeds) of the evaluation score in
+  ``results.csv``: *flat* when ``|Δ|`` is below it (the last fifth of the budget moves
+  the score by less than its SE); else *rising* or *falling* when ``|Δ|`` is also more
+  than 2 SE of ``Δ`` over seeds (a move the curves' noise does not explain), and *noisy*
+  when it is not (the curve cannot tell). A run with fewer than 10 scored updates cannot
+  be split in fifths: *too short*.
+
+A learner without environment steps (Transporter, trained on demonstrations only) has no
+curve in the file; its row gives its Adam steps and wall time and the verdict ``no
+curve``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.findings import _grid_rows, _stats
+
+#: Fewer scored updates than this and a curve is not split in fifths.
+MIN_UPDATES = 10
+
+
+def _fifths_delta(scores) -> float:
+    """Mean of the last fifth of ``scores`` (finite entries, in update order) minus the
+    mean of the fifth before; NaN when there are fewer than :data:`MIN_UPDATES`."""
+    ys = np.asarray([s for s in scores if math.isfinite(s)], float)
+    if len(ys) < MIN_UPDATES:
+        return math.nan
+    k = len(ys) // 5
+    return float(ys[-k:].mean() - ys[-2 * k:-k].mean())
+
+
+def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], str, int]:
+    """``(rows, budget, stale rows left out)``: one dict per (task, learner) with curves
+    or learner rows in the grid at ``path``: env steps and updates per seed, the mean
+    training wall time, the per-seed fifths ``Δ`` (mean, SE), the evaluation score's SE,
+    the number of seeds and the verdict (see the module docstring)."""
+    from dax_algos import registry
+    from dax_algos.bench import learning, report
+    from dax_algos.method import LearnerMethod
+
+    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    full = Path(path)
+    if not full.is_dir():
+        from benchmarks._report import ROOT
+        full = ROOT / path
+    stats = _stats(rows)
+    ok = [r for r in rows if r["status"] == "ok"]
+    learners = {m for m in {r["method"] for r in ok}
+                if m in registry.names() and isinstance(registry.get(m), LearnerMethod)}
+    out = []
+    for task in sorted({r["task"] for r in ok}):
+        runs = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in ok
+                if r["task"] == task and r["method"] in learners}
+        if not runs:
+            continue
+        lp = learning.learning_path(full, task)
+        curves = learning.read_curves(lp, keep=runs) if lp.exists() else []
+        for method in sorted({m for _, m, _, _ in runs}):
+            mine = [r for r in ok if r["task"] == task and r["method"] == method]
+            by_seed: dict = {}
+            for c in curves:
+                if c["method"] == method:
+                    by_seed.setdefault(c["seed"], []).append(c)
+            deltas, steps, updates, walls = [], [], [], []
+            for rs in by_seed.values():
+                rs = sorted(rs, key=lambda c: c["update"])
+                deltas.append(_fifths_delta([c["score"] for c in rs]))
+                steps.append(rs[-1]["env_steps"])
+                updates.append(len(rs))
+                walls.append(rs[-1]["wall_s"])
+            if not walls:
+                walls = [float(r["wall_s"]) for r in mine if r.get("wall_s")]
+            _, eval_se, n = stats.get((task, method), (math.nan, math.nan, len(mine)))
+            finite = [d for d in deltas if math.isfinite(d)]
+            d_mean, d_se = report.mean_se(finite) if finite else (math.nan, math.nan)
+            if not by_seed:
+                verdict = "no curve"
+            elif not finite:
+                verdict = "too short"
+            elif abs(d_mean) < eval_se:
+                verdict = "flat"
+            elif abs(d_mean) > 2 * (0.0 if math.isnan(d_se) else d_se):
+                verdict = "rising" if d_mean > 0 else "falling"
+            else:
+                verdict = "noisy"
+            out.append(dict(task=task, method=method, env_steps=max(steps, default=0),
+                            updates=max(updates, default=0),
+                            wall_s=float(np.mean(walls)) if walls else math.nan,
+                            delta=d_mean, delta_se=d_se, eval_se=eval_se, n=n,
+                            verdict=verdict, curve=lp.name if by_seed else None))
+    return out, budget, n_stale
+
+
+def render_table(path, budget=None, include_stale=False) -> str:
+    """The budget table of the grid at ``path`` (Markdown)."""
+    rows, budget, n_stale = curve_budgets(path, budget, include_stale)
+    if not rows:
+        raise ValueError(f"{path}: no learner rows in it")
+    lines = ["| task | method | env steps / seed | updates | training wall (s) | "
+             "Δ last fifth (± SE) | eval SE | verdict | curve |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        delta = ("—" if not math.isfinite(r["delta"]) else
+                 f"{r['delta']:+.3f} ± {0.0 if math.isnan(r['delta_se']) else r['delta_se']:.3f}")
+        lines.append(
+            f"| {r['task']} | {r['method']} | {r['env_steps']:.0f} | {r['updates']} | "
+            f"{r['wall_s']:.0f} | {delta} | {r['eval_se']:.3f} | {r['verdict']} | "
+            f"{'`' + r['curve'] + '`' if r['curve'] else '—'} |")
+    lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
+              + (f", {n_stale} stale rows left out" if n_stale else "")
+              + f", {rows[0]['n']} training seeds per row where all ran. Curve: per update, "
+              "the mean final-step r_gt of the training episodes that ended in it. Δ: per "
+              "seed, the mean over the last fifth of the updates minus the fifth before, mean "
+              "± SE over seeds; flat when |Δ| is below the SE of the evaluation score (over "
+              "seeds), rising or falling when |Δ| is also above 2 SE of Δ, else noisy; wall "
+              "time: training only, mean over seeds, on "
+              "the grid's machine (run.json)."]
+    return "\n".join(lines) + "\n"

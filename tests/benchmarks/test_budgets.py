@@ -1,0 +1,64 @@
+"""The budget table (``benchmarks/budgets.py``) on a grid written for the test: the fifths
+difference of each learning curve, its verdict against the evaluation SE and the curve's
+own noise, and the budget read off the curve (env steps, updates, training wall time)."""
+
+import math
+
+import pytest
+
+from benchmarks import budgets
+from dax_algos.bench import learning
+from dax_algos.bench.rows import append_row, make_row
+
+
+def _grid(tmp_path, curves, scores):
+    """``curves``: {(method, seed): [score per update]} on fold_cloth1 (12 env steps and 2
+    s per update); ``scores``: {method: [evaluation score per seed]}."""
+    for (method, seed), ys in curves.items():
+        learning.append_curve(learning.learning_path(tmp_path, "fold_cloth1"), [
+            dict(task="fold_cloth1", method=method, seed=seed, budget="full", update=u,
+                 env_steps=12.0 * (u + 1), wall_s=2.0 * (u + 1), score=y)
+            for u, y in enumerate(ys)])
+    for method, values in scores.items():
+        for seed, v in enumerate(values):
+            append_row(tmp_path / "results.csv",
+                       make_row("fold_cloth1", method, seed, "full", status="ok", score=v,
+                                wall_s=5.0, untrained_score=0.3))
+    return tmp_path
+
+
+def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_path):
+    flat = [0.3] * 5 + [0.4] * 15                     # risen early, then flat: Δ = 0
+    rising = [0.3 + 0.01 * u for u in range(20)]      # still rising: Δ = +0.04
+    noisy_a = [0.4, 0.5] * 10                          # Δ = 0 on seed 0 ...
+    noisy_b = [0.4] * 16 + [0.6] * 4                   # ... +0.2 on seed 1: Δ = 0.1 ± 0.1
+    grid = _grid(tmp_path, {
+        ("apg", 0): flat, ("apg", 1): flat,
+        ("ild", 0): rising, ("ild", 1): [y + 0.01 for y in rising],
+        ("shac", 0): noisy_a, ("shac", 1): noisy_b,
+        ("ppo", 0): [0.4] * 6, ("ppo", 1): [0.4] * 6,
+    }, {"apg": [0.40, 0.42], "ild": [0.50, 0.52], "shac": [0.40, 0.42], "ppo": [0.4, 0.41],
+        "transporter": [0.6, 0.62], "random": [0.3, 0.3]})
+    rows, budget, stale = budgets.curve_budgets(grid, include_stale=True)
+    out = {r["method"]: r for r in rows}
+    assert budget == "full" and stale == 0 and "random" not in out
+    assert out["apg"]["verdict"] == "flat" and out["apg"]["delta"] == pytest.approx(0.0)
+    assert out["ild"]["verdict"] == "rising"
+    assert out["ild"]["delta"] == pytest.approx(0.04) and out["ild"]["eval_se"] < 0.04
+    assert out["shac"]["verdict"] == "noisy"
+    assert out["shac"]["delta"] == pytest.approx(0.1) and out["shac"]["delta_se"] == (
+        pytest.approx(0.1))
+    assert out["ppo"]["verdict"] == "too short" and math.isnan(out["ppo"]["delta"])
+    assert out["transporter"]["verdict"] == "no curve"
+    assert out["transporter"]["wall_s"] == pytest.approx(5.0)
+    assert (out["apg"]["env_steps"], out["apg"]["updates"], out["apg"]["wall_s"]) == (
+        240, 20, 40.0)
+    table = budgets.render_table(grid, include_stale=True)
+    assert "| fold_cloth1 | ild | 240 | 20 | 40 | +0.040 ± 0.000 |" in table, table
+    assert "rising" in table and "2 training seeds" in table
+
+
+def test_a_grid_without_learner_rows_is_refused(tmp_path):
+    _grid(tmp_path, {}, {"random": [0.3, 0.3]})
+    with pytest.raises(ValueError, match="no learner rows"):
+        budgets.render_table(tmp_path, include_stale=True)
