@@ -135,3 +135,74 @@ def render_table(path, budget=None, include_stale=False) -> str:
               "time: training only, mean over seeds, on "
               "the grid's machine (run.json)."]
     return "\n".join(lines) + "\n"
+
+
+def env_rate(task_record: dict, batch: int, grad: bool) -> float:
+    """The environment's own steps per second at ``batch`` from a throughput document's
+    task record (:func:`benchmarks.tasks.throughput_main`), forward or with the action
+    gradient: interpolated linearly in log(rate) against log(batch) between the measured
+    batches, the nearest measured one outside them; NaN when none was measured."""
+    key = "grad_steps_per_s" if grad else "steps_per_s"
+    pts = sorted((r["batch"], r[key]) for r in task_record["rows"]
+                 if r.get("measured") and r.get(key))
+    if not pts:
+        return math.nan
+    bs, rs = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    return float(np.exp(np.interp(math.log(batch), bs, rs)))
+
+
+def training_throughput(grid, throughput, budget=None, include_stale=False) -> list[dict]:
+    """Per (task, learner) of the grid with a learning curve: environment steps per second
+    of training (the curve's last cumulative env steps over its last cumulative wall time,
+    mean over seeds), the batch it trains at (the budget's ``num_envs``), the environment's
+    own rate at that batch from the throughput document (with the action gradient for a
+    method that differentiates the simulator) and their ratio: the share of training time
+    the environment's steps would take alone."""
+    import json
+
+    from dax_algos import registry
+
+    rows, budget, _ = curve_budgets(grid, budget, include_stale)
+    tp = Path(throughput)
+    if not tp.is_file():
+        from benchmarks._report import ROOT
+        tp = ROOT / throughput
+    doc = json.loads(tp.read_text())
+    if doc.get("bench") != "throughput":
+        raise ValueError(f"{throughput}: not a throughput document")
+    records = {t["task"]: t for t in doc["tasks"]}
+    out = []
+    for r in rows:
+        if not r["env_steps"] or r["task"] not in records:
+            continue
+        method = registry.get(r["method"])
+        config = method.config(budget, r["task"])
+        batch = int(getattr(config, "num_envs", 1))
+        rate = r["env_steps"] / r["wall_s"]
+        env = env_rate(records[r["task"]], batch, method.uses_gradients)
+        out.append(dict(task=r["task"], method=r["method"], batch=batch, train_rate=rate,
+                        env_rate=env, grad=method.uses_gradients, share=rate / env))
+    return out
+
+
+def render_throughput(grid, throughput, budget=None, include_stale=False) -> str:
+    """The training throughput table (Markdown) of the grid at ``grid`` beside the
+    environment's own rates in the throughput document ``throughput``."""
+    rows = training_throughput(grid, throughput, budget, include_stale)
+    if not rows:
+        raise ValueError(f"{grid}: no learner with a learning curve on a task of {throughput}")
+    lines = ["| task | method | envs | training: env steps/s | env alone at that batch: "
+             "steps/s | env's share of training time |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['method']} | {r['batch']} | {r['train_rate']:.1f} | "
+                     f"{r['env_rate']:.1f}{' (grad)' if r['grad'] else ''} | "
+                     f"{100 * r['share']:.0f} % |")
+    lines += ["", f"Training rate: from `{Path(grid).as_posix()}` (its learning curves: "
+              "cumulative env steps over cumulative training wall time, mean over seeds; "
+              "evaluation excluded). Env alone: `" + Path(throughput).as_posix() + "` (the "
+              "forward step, or with the action gradient for a method that differentiates "
+              "the simulator), interpolated in log-log between its measured batches. Share: "
+              "training rate over the env's rate, the part of training the env's steps "
+              "would take alone; near or above 100 % the env step is the bottleneck (the "
+              "two files were measured in different sittings, each on 2 shared cores)."]
+    return "\n".join(lines) + "\n"

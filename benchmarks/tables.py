@@ -107,6 +107,10 @@ FILE_KINDS = {
     "budgets": ("benchmarks.budgets", "render_table",
                 "each learner's budget per task and whether its learning curve has "
                 "flattened, from a grid directory's results and learning curves", 1),
+    "training_throughput": ("benchmarks.budgets", "render_throughput",
+                            "each learner's env steps per second during training beside "
+                            "the env's own rate at its batch (a grid directory and a "
+                            "benchmarks.tasks throughput JSON file)", 2),
     "ablation": ("benchmarks.ablate", "render_table",
                  "learner ablations: each variant against the baseline, paired by seed "
                  "(benchmarks.ablate JSONL files)", "+"),

@@ -62,3 +62,25 @@ def test_a_grid_without_learner_rows_is_refused(tmp_path):
     _grid(tmp_path, {}, {"random": [0.3, 0.3]})
     with pytest.raises(ValueError, match="no learner rows"):
         budgets.render_table(tmp_path, include_stale=True)
+
+
+def test_training_throughput_sets_each_learner_against_the_env_at_its_batch(tmp_path):
+    import json
+
+    grid = _grid(tmp_path, {("apg", 0): [0.3] * 20, ("ppo", 0): [0.3] * 20},
+                 {"apg": [0.4], "ppo": [0.4]})
+    doc = tmp_path / "throughput.json"
+    doc.write_text(json.dumps({"bench": "throughput", "tasks": [{"task": "fold_cloth1", "rows": [
+        {"batch": 1, "measured": True, "steps_per_s": 5.0, "grad_steps_per_s": 10.0},
+        {"batch": 16, "measured": True, "steps_per_s": 50.0, "grad_steps_per_s": 40.0},
+        {"batch": 64, "measured": False, "reason": "out of time"}]}]}))
+    out = {r["method"]: r for r in budgets.training_throughput(grid, doc, include_stale=True)}
+    # APG trains 4 envs through the gradient: the env's rate at 4 lies halfway between 1
+    # and 16 in log-log (sqrt(10 * 40) = 20); training ran 240 steps in 40 s
+    apg = out["apg"]
+    assert (apg["batch"], apg["grad"]) == (4, True)
+    assert apg["env_rate"] == pytest.approx(20.0) and apg["share"] == pytest.approx(0.3)
+    # PPO's 64 envs: beyond the measured batches, the nearest one (16), forward
+    assert out["ppo"]["grad"] is False and out["ppo"]["env_rate"] == pytest.approx(50.0)
+    table = budgets.render_throughput(grid, doc, include_stale=True)
+    assert "| fold_cloth1 | apg | 4 | 6.0 | 20.0 (grad) | 30 % |" in table, table

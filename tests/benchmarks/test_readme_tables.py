@@ -138,8 +138,9 @@ def test_every_file_kind_renders_a_readme_block_with_its_module_function():
 def test_a_file_kind_rejects_a_file_of_another_benchmark(tmp_path, capsys):
     doc = tmp_path / "other.json"
     doc.write_text('{"bench": "task"}\n')
-    for kind in tables.FILE_KINDS:
-        assert tables.main([kind, str(doc)]) == 2, kind
+    for kind, (_, _, _, nargs) in tables.FILE_KINDS.items():
+        files = [str(doc)] * (nargs if isinstance(nargs, int) else 1)
+        assert tables.main([kind, *files]) == 2, kind
         assert str(doc) in capsys.readouterr().err, kind
 
 
