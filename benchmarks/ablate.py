@@ -56,7 +56,9 @@ from dax_tasks.io import atomic_write
 #: hypothesis (issue 36): the normaliser inside the differentiated rollout (``raw_obs``),
 #: Adam after the gradient clip (``no_clip``, ``lr_low``), the training objective against
 #: the score (``final_reward``, ``no_aux``), SHAC's window (``window1``), ILD's targets
-#: from random starts (``aligned``).
+#: from random starts (``aligned``), Transporter's goal picture of the unaligned goal
+#: (``aligned_goal``, ``no_goal``) and its augmentation against starts at any heading
+#: (``rotate_any``).
 VARIANTS = {
     "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "no_clip": {"max_grad_norm": None}, "lr_low": {"learning_rate": 1e-4},
@@ -68,6 +70,9 @@ VARIANTS = {
             "lr_low": {"learning_rate": 1e-4}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0},
             "lr_high": {"learning_rate": 3e-3}},
+    "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
+                    "no_goal": {"goal_image": False},
+                    "rotate_any": {"augment_rotation": 3.141592653589793}},
 }
 
 

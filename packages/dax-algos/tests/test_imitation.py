@@ -227,6 +227,17 @@ def test_demonstrations_are_loaded_for_the_env_they_were_recorded_for(demo_file,
     obs, _ = jax.jit(transporter.observation_env(small_env, config).reset)(
         jax.random.PRNGKey(100))
     np.testing.assert_array_equal(np.asarray(data.obs[0]), np.asarray(obs))
+    # with the goal pictured on the cloth's pose: every step's goal channel is the goal
+    # aligned to that step's recorded cloth, the start's as the policy sees it
+    aligned = transporter.TransporterConfig(demos=2, align_goal=True)
+    data_a = transporter.load_data(small_env, aligned, demo_file)
+    obs_a, _ = jax.jit(transporter.observation_env(small_env, aligned).reset)(
+        jax.random.PRNGKey(100))
+    np.testing.assert_allclose(np.asarray(data_a.obs[0]), np.asarray(obs_a), rtol=0,
+                               atol=1e-6)
+    assert not np.array_equal(np.asarray(data_a.obs[0, ..., 1]),
+                              np.asarray(data_a.obs[1, ..., 1])), "one goal for every step"
+    np.testing.assert_array_equal(np.asarray(data_a.obs[..., 0]), np.asarray(data.obs[..., 0]))
 
 
 def test_demonstrations_of_another_task_spec_or_a_broken_file_are_refused(

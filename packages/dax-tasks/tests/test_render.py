@@ -126,3 +126,30 @@ def test_goal_image_appends_the_goal_picture_and_pixels_map_to_the_table(fold):
     hm = np.asarray(viz.height_map(jnp.asarray([[0.1, -0.05, 0.03]]), camera.window, 32))
     row, col = np.round(np.asarray(px[0])).astype(int)
     assert hm[row, col] == pytest.approx(0.03 - camera.window[4])
+
+
+def test_an_aligned_goal_picture_follows_the_cloth_pose(fold):
+    """With ``align_goal`` the goal is pictured where the distance compares it (moved onto
+    the cloth's pose): two starts at different poses show two goal pictures, each the
+    picture of the goal aligned to that start's cloth; without it both show the same."""
+    plain = ObservationMode(fold, "height", image_size=32, goal_image=True)
+    aligned = ObservationMode(fold, "height", image_size=32, goal_image=True,
+                              align_goal=True)
+    pics = []
+    for seed in (0, 1):
+        obs, state = jax.jit(aligned.reset)(jax.random.PRNGKey(seed))
+        x = fold.object_points(state.physics)
+        want = plain.image(fold.aligned_goal(x, fold.default_params.goal))
+        np.testing.assert_allclose(np.asarray(obs[..., 1]), np.asarray(want[..., 0]),
+                                   rtol=0, atol=1e-6)
+        pics.append(np.asarray(obs[..., 1]))
+        np.testing.assert_array_equal(np.asarray(jax.jit(plain.reset)(
+            jax.random.PRNGKey(seed))[0][..., 1]), np.asarray(plain.goal_observation())[..., 0])
+    assert not np.array_equal(pics[0], pics[1]), "the aligned goal ignores the cloth's pose"
+    with pytest.raises(ValueError, match="needs goal_image"):
+        ObservationMode(fold, "height", goal_image=False, align_goal=True)
+    with pytest.raises(ValueError, match="aligned_goal"):
+        ObservationMode(dax_tasks.make("whip_rope", cache_goal=False), "height",
+                        goal_image=True, align_goal=True)
+    with pytest.raises(ValueError, match="object's points"):
+        aligned.goal_observation()

@@ -7,9 +7,12 @@ Networks"), trained by imitation on expert pick-and-place demonstrations.
 the task's camera): the height map (``transporter``) or the RGB picture and the height map
 (``transporter_rgb``; the object's texture tells a cloth's corners or a rope's ends apart,
 which a height map cannot), with the goal's picture in the same mode stacked on the
-channels (``goal_image``, default on: the tasks' goals are positions on the table, which a
-fully convolutional network can only find relative to something it sees). Heights are
-divided by ``height_scale``.
+channels (``goal_image``, default on). The macro tasks' goals are shapes, not places: their
+distance compares the object with the goal moved onto the object's pose
+(``aligned_goal``); with ``align_goal`` the goal is pictured so, at every step, which
+tells a fully convolutional network where the goal's parts lie relative to the object it
+sees (without it the goal's picture is the same at every start). Heights are divided by
+``height_scale``.
 
 **Pick (attention).** A fully convolutional network (a small U-Net, :class:`FCN`) gives a
 logit per pixel of its output grid (half the picture's resolution); the pick is the pixel
@@ -69,9 +72,11 @@ MACRO_KINDS = ("push", "pick_place")
 class TransporterConfig:
     """rgb: height map and RGB picture (``transporter_rgb``), else the height map only;
     image_size: picture side [pixels] (a multiple of 8); goal_image: the goal's picture as
-    more input channels; demos: demonstrations used (of the standard set's 10); width:
-    channels of the FCNs' first layer; features: key/query feature channels; crop: side of
-    the query crop [output-grid pixels, odd; the grid is half the picture's resolution];
+    more input channels; align_goal: the goal pictured aligned to the object's current
+    pose (the task's ``aligned_goal``; needs ``goal_image``); demos: demonstrations used
+    (of the standard set's 10); width: channels of the FCNs' first layer; features:
+    key/query feature channels; crop: side of the query crop [output-grid pixels, odd; the
+    grid is half the picture's resolution];
     n_rotations: crop rotations; train_steps, batch_size,
     learning_rate, max_grad_norm: the Adam training; augment_rotation [rad],
     augment_shift [pixels]: augmentation ranges; height_scale [m]: heights are divided by
@@ -80,6 +85,7 @@ class TransporterConfig:
     rgb: bool = False
     image_size: int = 64
     goal_image: bool = True
+    align_goal: bool = False
     demos: int = 10
     width: int = 16
     features: int = 16
@@ -102,6 +108,8 @@ class TransporterConfig:
                      optional_positive=("max_grad_norm",))
         if self.image_size % 8:
             raise ValueError(f"image_size must be a multiple of 8, got {self.image_size}")
+        if self.align_goal and not self.goal_image:
+            raise ValueError("align_goal pictures the goal: it needs goal_image=True")
         if self.crop % 2 == 0:
             raise ValueError(f"crop must be odd (centred on the pick), got {self.crop}")
 
@@ -142,7 +150,8 @@ def train_env_steps(env, config) -> int:
 def observation_env(env, config: TransporterConfig) -> dax_tasks.ObservationMode:
     """The env seen through the pictures the networks take."""
     return dax_tasks.ObservationMode(env, config.mode, config.image_size,
-                                     goal_image=config.goal_image)
+                                     goal_image=config.goal_image,
+                                     align_goal=config.align_goal)
 
 
 # ----------------------------------------------------------------------------- networks
@@ -380,14 +389,23 @@ def data_from_episodes(env, config: TransporterConfig, episodes) -> TransporterD
     :func:`observation_env` shows it, and its action's pick and place as pixels."""
     obs_env = observation_env(env, config)
     camera, size = obs_env.camera, config.image_size
-    goal = np.asarray(jax.jit(obs_env.goal_observation)()) if config.goal_image else None
+    goal_picture = jax.jit(obs_env.goal_observation)
+    goal = np.asarray(goal_picture()) if config.goal_image and not config.align_goal \
+        else None
     z0 = np.float32(camera.window[4])
     obs, pick, place, z_pick, z_place = [], [], [], [], []
     for ep in episodes:
+        steps = {int(k): i for i, k in enumerate(ep.point_steps)}
         for t in range(ep.length):
             height = ep.height[t][..., None]
             cur = (np.concatenate([np.asarray(rgb_as_float(ep.rgb[t])), height], axis=-1)
                    if config.rgb else height)
+            if config.align_goal:
+                if t not in steps:
+                    raise ValueError(f"episode {ep.index}: no object points at step {t} "
+                                     f"(points at steps {list(steps)}): align_goal needs "
+                                     f"them at every step")
+                goal = np.asarray(goal_picture(None, jnp.asarray(ep.points[steps[t]])))
             obs.append(np.concatenate([cur, goal], axis=-1) if goal is not None else cur)
             a = np.asarray(ep.actions[t], np.float32)
             hg = np.asarray(grid_heights(ep.height[t]))

@@ -213,11 +213,14 @@ class ObservationMode(Wrapper):
     mode also shows the goal: the picture of ``params.goal`` in the same mode (no end
     effector) is appended along the channels, ``(S, S, 2 C)`` (a goal-conditioned
     observation, as goal-conditioned Transporter networks take it; ``rgb`` then stays
-    uint8).
+    uint8). With ``align_goal=True`` as well, the goal is pictured where the task's
+    distance compares it: moved onto the object's current pose by the task's
+    ``aligned_goal(points, goal)`` (the cloth tasks and Push-Rope, whose goals are shapes,
+    not places); only for a task that has it.
     """
 
     def __init__(self, env, mode: str = "state", image_size: int = 64,
-                 goal_image: bool = False):
+                 goal_image: bool = False, align_goal: bool = False):
         super().__init__(env)
         if mode not in OBS_MODES:
             raise ValueError(f"unknown observation mode {mode!r}; valid: "
@@ -227,7 +230,13 @@ class ObservationMode(Wrapper):
         if goal_image and mode not in IMAGE_MODES:
             raise ValueError(f"goal_image needs an image mode ({', '.join(IMAGE_MODES)}), "
                              f"got {mode!r}")
+        if align_goal and not goal_image:
+            raise ValueError("align_goal pictures the goal: it needs goal_image=True")
+        if align_goal and not callable(getattr(env, "aligned_goal", None)):
+            raise ValueError(f"align_goal needs a task whose distance aligns its goal to "
+                             f"the object (aligned_goal); {env.spec.name} has none")
         self.mode, self.image_size, self.goal_image = mode, image_size, goal_image
+        self.align_goal = align_goal
         self.camera = images.Camera.for_env(env) if mode in IMAGE_MODES else None
 
     def image(self, points, end_effector=None):
@@ -244,10 +253,17 @@ class ObservationMode(Wrapper):
         rgb = rgb_as_float(self.camera.rgb(points, end_effector, size, colors))
         return jnp.concatenate([rgb, height], axis=-1)
 
-    def goal_observation(self, params=None):
-        """The goal's picture ``(S, S, C)`` (:meth:`image` of ``params.goal``)."""
+    def goal_observation(self, params=None, points=None):
+        """The goal's picture ``(S, S, C)``: :meth:`image` of ``params.goal``, or, with
+        ``align_goal``, of the goal aligned to the object points ``points`` (N, 3) [m]
+        (``ValueError`` if they are not given)."""
         params = self.env.default_params if params is None else params
-        return self.image(params.goal)
+        if not self.align_goal:
+            return self.image(params.goal)
+        if points is None:
+            raise ValueError("align_goal: the goal's picture needs the object's points")
+        goal = jnp.asarray(params.goal, jnp.asarray(points).dtype)
+        return self.image(self.env.aligned_goal(points, goal))
 
     def observation(self, physics, params=None):
         if self.mode == "state":
@@ -257,7 +273,7 @@ class ObservationMode(Wrapper):
             return jnp.concatenate([pts, ee[None]], axis=0)
         img = self.image(pts, ee)
         if self.goal_image:
-            img = jnp.concatenate([img, self.goal_observation(params)], axis=-1)
+            img = jnp.concatenate([img, self.goal_observation(params, pts)], axis=-1)
         return img
 
     def reset(self, key, params=None):
