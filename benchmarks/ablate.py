@@ -58,17 +58,20 @@ from dax_tasks.io import atomic_write
 #: the score (``final_reward``, ``no_aux``), SHAC's window (``window1``), ILD's targets
 #: from random starts (``aligned``), Transporter's goal picture of the unaligned goal
 #: (``aligned_goal``, ``no_goal``) and its augmentation against starts at any heading
-#: (``rotate_any``).
+#: (``rotate_any``), an MLP policy that sees a cloth at any place and heading in table
+#: coordinates (``object_frame``: :class:`dax_tasks.ObjectFrame`).
 VARIANTS = {
     "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
+            "object_frame": {"frame": "object"},
             "no_clip": {"max_grad_norm": None}, "lr_low": {"learning_rate": 1e-4},
             "final_reward": {"objective": "final"}, "no_aux": {"aux_weight": 0.0}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
+             "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
-    "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0},
+    "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             "lr_high": {"learning_rate": 3e-3}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},

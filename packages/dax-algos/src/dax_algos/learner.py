@@ -27,7 +27,7 @@ import dax_tasks
 
 from .actions import to_action
 from .episode import EpisodeOutput, PlanStats
-from .mlp_policy import ObsNorm, feature_dim, features
+from .mlp_policy import ObsNorm, feature_dim, features, policy_env
 
 
 class Policy(NamedTuple):
@@ -72,6 +72,7 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
     for a standard error over the evaluation starts. The rollouts are split over the
     devices (:func:`dax_tasks.shard_batch`)."""
     horizon = env.horizon
+    world = isinstance(env, dax_tasks.ObjectFrame)  # record the actions the task stepped
     if inputs is None:
         def inputs(obs, t):
             return features(obs, t, horizon)
@@ -84,6 +85,8 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
             z = act(policy, inputs(obs, state.t))
             action = to_action(env, z)
             obs, state, reward, _, info = env.step(state, action, params)
+            if world:
+                action = info["world_action"]
             return (obs, state), (action, reward, info["r_gt"], info["distance"],
                                   info["finite"])
 
@@ -107,8 +110,11 @@ def make_evaluate(env, act: Callable, n_rollouts: int,
 
 def evaluate_features(env, config, act: Callable, per_rollout: bool = False) -> Callable:
     """The default :attr:`Learner.make_evaluate`: :func:`make_evaluate` of ``act`` on
-    :func:`dax_algos.mlp_policy.features`, ``config.n_eval`` rollouts."""
-    return make_evaluate(env, act, config.n_eval, per_rollout=per_rollout)
+    :func:`dax_algos.mlp_policy.features`, ``config.n_eval`` rollouts, in the env the
+    policy acts in (:func:`dax_algos.mlp_policy.policy_env`; the recorded actions are the
+    task's, in table coordinates)."""
+    return make_evaluate(policy_env(env, config), act, config.n_eval,
+                         per_rollout=per_rollout)
 
 
 def no_demonstrations(config) -> None:

@@ -20,6 +20,29 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+import dax_tasks
+
+#: Where an MLP policy sees the scene from (its config's ``frame``): ``table`` (the task's
+#: own observation and actions) or ``object`` (:class:`dax_tasks.ObjectFrame`: a macro
+#: task's points and actions in the object's own frame, its place and heading on the table
+#: factored out).
+FRAMES = ("table", "object")
+
+
+def check_frame(frame: str) -> None:
+    """``ValueError`` naming the valid frames unless ``frame`` is one of :data:`FRAMES`."""
+    if frame not in FRAMES:
+        raise ValueError(f"unknown frame {frame!r}; valid: {', '.join(FRAMES)}")
+
+
+def policy_env(env, config):
+    """The env the policy of ``config`` acts in: ``env`` itself, or
+    :class:`dax_tasks.ObjectFrame` of it for ``config.frame == "object"`` (a config
+    without a ``frame`` field: ``env``)."""
+    if getattr(config, "frame", "table") == "object":
+        return dax_tasks.ObjectFrame(env)
+    return env
+
 
 def features(obs, t, horizon: int):
     """The policy input ``(feature_dim,)`` float32 of one env: the flattened observation

@@ -28,6 +28,7 @@ from .core import (
     EnvState,
     EpisodeStatistics,
     GoalFileError,
+    ObjectFrame,
     ObservationMode,
     TaskSpec,
     VmapWrapper,
@@ -54,8 +55,9 @@ except PackageNotFoundError:  # imported from a source tree that was never insta
 
 __all__ = [
     "RESOLUTIONS", "TASKS", "AutoReset", "Box", "Env", "EnvParams", "EnvState",
-    "EpisodeStatistics", "GoalFileError", "ObservationMode", "TaskSpec", "VmapWrapper",
-    "__version__", "auxiliary_reward", "available", "chamfer", "check_overrides", "core",
-    "env_class", "get_spec", "ground_truth_reward", "io", "l2_correspondence", "make",
+    "EpisodeStatistics", "GoalFileError", "ObjectFrame", "ObservationMode", "TaskSpec",
+    "VmapWrapper", "__version__", "auxiliary_reward", "available", "chamfer",
+    "check_overrides", "core", "env_class", "get_spec", "ground_truth_reward", "io",
+    "l2_correspondence", "make",
     "register", "shard_batch", "spec_from_json", "tasks", "training_env", "viz",
 ]

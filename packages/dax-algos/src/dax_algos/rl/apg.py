@@ -29,7 +29,14 @@ from .. import nets
 from ..actions import to_action
 from ..checks import check_fields
 from ..learner import Learner, Policy
-from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
+from ..mlp_policy import (
+    ObsNorm,
+    batch_features,
+    check_frame,
+    deterministic_act,
+    feature_dim,
+    policy_env,
+)
 from ..optim import guarded_update, make_optimiser
 from . import losses
 from .training import training_params, update_metrics
@@ -44,7 +51,9 @@ class APGConfig:
     action_noise: std of exploration noise on the pre-squash action (0: none);
     objective: ``"sum"`` ascends the window's summed training rewards (r_gt + aux_weight
     r_aux per step), ``"final"`` the final-step r_gt of each episode that ends in the
-    window (the score itself; a window in which no episode ends has no gradient)."""
+    window (the score itself; a window in which no episode ends has no gradient).
+    frame: ``"table"`` (the task's observation and actions) or ``"object"`` (a macro
+    task's in the object's own frame, :class:`dax_tasks.ObjectFrame`)."""
 
     total_env_steps: int = 20_000
     num_envs: int = 4
@@ -56,12 +65,14 @@ class APGConfig:
     activation: str = "swish"
     action_noise: float = 0.0
     normalize_obs: bool = True
+    frame: str = "table"
     remat: bool = False
     aux_weight: float = 1.0
     objective: str = "sum"
     n_eval: int = 20
 
     def __post_init__(self):
+        check_frame(self.frame)
         check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
                      positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
@@ -124,6 +135,7 @@ def make_rollout(env, venv, pnet, config, window: int):
 
 def make_train(env, config: APGConfig):
     """``train(key, params=None) -> (Policy, UpdateMetrics)``."""
+    env = policy_env(env, config)
     window = config.window_for(env)
     venv = dax_tasks.training_env(env, config.num_envs)
     pnet = network(env, config)

@@ -31,7 +31,14 @@ from .. import nets
 from ..actions import to_action
 from ..checks import check_fields
 from ..learner import Learner, Policy
-from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
+from ..mlp_policy import (
+    ObsNorm,
+    batch_features,
+    check_frame,
+    deterministic_act,
+    feature_dim,
+    policy_env,
+)
 from ..optim import guarded_update, make_optimiser
 from . import gaussian, losses
 from .training import training_params, update_metrics
@@ -43,7 +50,9 @@ class PPOConfig:
     unroll_length`` per update); policy_hidden / value_hidden: MLP widths; activation:
     ``swish`` / ``tanh`` / ``relu`` / ``elu``; init_log_std: the Gaussian's initial log
     standard deviation (pre-``tanh``); max_grad_norm: global-norm clip (``None``: off);
-    aux_weight: weight of r_aux in the training reward; n_eval: evaluation rollouts."""
+    aux_weight: weight of r_aux in the training reward; n_eval: evaluation rollouts.
+    frame: ``"table"`` (the task's observation and actions) or ``"object"`` (a macro
+    task's in the object's own frame, :class:`dax_tasks.ObjectFrame`)."""
 
     total_env_steps: int = 100_000
     num_envs: int = 64
@@ -62,10 +71,12 @@ class PPOConfig:
     activation: str = "swish"
     init_log_std: float = -0.5
     normalize_obs: bool = True
+    frame: str = "table"
     aux_weight: float = 1.0
     n_eval: int = 20
 
     def __post_init__(self):
+        check_frame(self.frame)
         check_fields(self, ints=("total_env_steps", "num_envs", "unroll_length", "epochs",
                                  "minibatches", "n_eval"),
                      positive=("learning_rate", "clip"),
@@ -120,6 +131,7 @@ def train_env_steps(env, config: PPOConfig) -> int:
 
 def make_train(env, config: PPOConfig):
     """``train(key, params=None) -> (Policy, UpdateMetrics)`` (see the module docstring)."""
+    env = policy_env(env, config)
     venv = dax_tasks.training_env(env, config.num_envs)
     pnet, vnet = policy_network(env, config), value_network(env, config)
     opt = make_optimiser(config.learning_rate, config.max_grad_norm)

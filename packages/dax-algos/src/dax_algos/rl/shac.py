@@ -36,7 +36,14 @@ from .. import nets
 from ..actions import to_action
 from ..checks import check_fields
 from ..learner import Learner, Policy
-from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
+from ..mlp_policy import (
+    ObsNorm,
+    batch_features,
+    check_frame,
+    deterministic_act,
+    feature_dim,
+    policy_env,
+)
 from ..optim import guarded_update, make_optimiser
 from . import losses
 from .training import training_params, update_metrics
@@ -45,7 +52,9 @@ from .training import training_params, update_metrics
 @dataclasses.dataclass(frozen=True)
 class SHACConfig:
     """total_env_steps: training budget in environment steps (``num_envs * window`` per
-    update); window: backpropagation horizon (clipped to the episode length)."""
+    update); window: backpropagation horizon (clipped to the episode length).
+    frame: ``"table"`` (the task's observation and actions) or ``"object"`` (a macro
+    task's in the object's own frame, :class:`dax_tasks.ObjectFrame`)."""
 
     total_env_steps: int = 20_000
     num_envs: int = 8
@@ -64,10 +73,12 @@ class SHACConfig:
     activation: str = "swish"
     init_log_std: float = -1.0
     normalize_obs: bool = True
+    frame: str = "table"
     aux_weight: float = 1.0
     n_eval: int = 20
 
     def __post_init__(self):
+        check_frame(self.frame)
         check_fields(self, ints=("total_env_steps", "num_envs", "window",
                                  "critic_iterations", "critic_minibatches", "n_eval"),
                      positive=("actor_learning_rate", "critic_learning_rate"),
@@ -106,6 +117,7 @@ def train_env_steps(env, config: SHACConfig) -> int:
 
 def make_train(env, config: SHACConfig):
     """``train(key, params=None) -> (Policy, UpdateMetrics)``."""
+    env = policy_env(env, config)
     window = config.window_for(env)
     venv = dax_tasks.training_env(env, config.num_envs)
     pnet, vnet = policy_network(env, config), value_network(env, config)

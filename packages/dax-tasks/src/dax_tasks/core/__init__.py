@@ -25,6 +25,7 @@ from .spec import Box, TaskSpec
 from .wrappers import (
     AutoReset,
     EpisodeStatistics,
+    ObjectFrame,
     ObservationMode,
     VmapWrapper,
     Wrapper,
@@ -34,7 +35,8 @@ from .wrappers import (
 
 __all__ = [
     "RESOLUTIONS", "AutoReset", "Box", "Env", "EnvParams", "EnvState", "EpisodeStatistics",
-    "GoalFileError", "MPMEnv", "ObservationMode", "TaskSpec", "VmapWrapper", "Wrapper",
+    "GoalFileError", "MPMEnv", "ObjectFrame", "ObservationMode", "TaskSpec", "VmapWrapper",
+    "Wrapper",
     "auxiliary_reward", "available", "chamfer", "check_overrides", "env_class", "get_spec",
     "ground_truth_reward", "l2_correspondence", "make", "register", "rgb_as_float",
     "shard_batch", "spec_from_json", "training_env",

@@ -8,7 +8,9 @@
 * :class:`EpisodeStatistics`: the return, length and final ``r_gt`` of the last finished
   episode, in ``info``;
 * :class:`ObservationMode`: the observation as ``state`` (the task's own), ``particles``,
-  ``height``, ``rgb`` or ``rgbd`` (images from the pure-JAX renderer).
+  ``height``, ``rgb`` or ``rgbd`` (images from the pure-JAX renderer);
+* :class:`ObjectFrame`: a macro task's observation and actions in the object's own frame
+  (a start's place and heading on the table factored out).
 
 The usual training stack is :func:`training_env`: ``VmapWrapper(EpisodeStatistics(
 AutoReset(env)))``. Order matters where it says so: :class:`EpisodeStatistics` must sit
@@ -300,6 +302,72 @@ class ObservationMode(Wrapper):
             if self.goal_image:
                 high[..., 4:7] = 1.0
         return Box(np.zeros(obs.shape, np.float32), high, obs.shape)
+
+
+class ObjectFrame(Wrapper):
+    """The env seen from the object's own frame: for a macro-action task whose distance
+    aligns its goal to the object (``goal_pose(points, goal) -> (rot, shift)``: the cloth
+    tasks, Push-Rope), the observation's points and end effector are expressed in the
+    frame in which the goal would lie on the object (table-plane coordinates ``rot^T (p -
+    shift)``, heights unchanged), and an action's pick and place (or push start and end)
+    are given in that frame and moved back onto the table (``rot p + shift``) before the
+    task steps. The frame is the pose of the object at the step (the observation's: the
+    state the action is applied to), so a start at any place and heading that differs
+    only by a rigid motion in the table plane looks the same and is acted on the same.
+
+    Same observation shape as the task's (its ``observe``: the object points at
+    ``obs_stride`` and the end effector, flattened); ``info["world_action"]`` is the
+    action the task stepped, in table coordinates [m]. Rewards, ``r_gt`` and the physics
+    are the task's, unchanged.
+    """
+
+    def __init__(self, env):
+        super().__init__(env)
+        if env.spec.action_kind not in ("push", "pick_place"):
+            raise ValueError(f"ObjectFrame needs a macro-action task (push, pick_place); "
+                             f"{env.spec.name} has {env.spec.action_kind} actions")
+        if not callable(getattr(env, "goal_pose", None)):
+            raise ValueError(f"ObjectFrame needs a task whose distance aligns its goal to "
+                             f"the object (goal_pose); {env.spec.name} has none")
+        want = jax.eval_shape(lambda k: env.reset(k)[0], jax.random.PRNGKey(0)).shape
+        got = jax.eval_shape(lambda k: self._frame_obs(env.reset(k)[1].physics, None),
+                             jax.random.PRNGKey(0)).shape
+        if want != got:
+            raise ValueError(f"ObjectFrame: {env.spec.name}'s observation {want} is not its "
+                             f"object points and end effector {got}")
+
+    def _pose(self, physics, params):
+        params = self.env.default_params if params is None else params
+        x = self.env.object_points(physics)
+        return self.env.goal_pose(x, jnp.asarray(params.goal, x.dtype))
+
+    def _frame_obs(self, physics, params):
+        rot, shift = self._pose(physics, params)
+        pts = self.env.object_points(physics)[:: self.env.spec.obs_stride]
+        p = jnp.concatenate([pts, self.env.end_effector(physics)[None]], 0)
+        xy = (p[:, :2] - shift) @ rot  # rot^T (p - shift), row by row
+        return jnp.concatenate([xy, p[:, 2:]], 1).reshape(-1)
+
+    def to_world(self, physics, action, params=None):
+        """``action`` (6,) given in the object frame of ``physics``, in table coordinates."""
+        rot, shift = self._pose(physics, params)
+        a = jnp.reshape(action, (2, 3))
+        xy = a[:, :2] @ rot.T + shift
+        return jnp.concatenate([xy, a[:, 2:]], 1).reshape(action.shape)
+
+    def reset(self, key, params=None):
+        _, state = self.env.reset(key, params)
+        return self._frame_obs(state.physics, params), state
+
+    def step(self, state, action, params=None):
+        world = self.to_world(state.physics, action, params)
+        _, st, reward, done, info = self.env.step(state, world, params)
+        info = {**info, "world_action": world}
+        return self._frame_obs(st.physics, params), st, reward, done, info
+
+    @property
+    def observation_space(self) -> Box:
+        return Box.unbounded(self.env.observation_space.shape)
 
 
 def rgb_as_float(rgb):

@@ -205,10 +205,16 @@ class ClothTask(Env):
     def object_points(self, physics):
         return physics.x
 
+    def goal_pose(self, x, goal):
+        """``(rot (2, 2), shift (2,))`` [m]: the rigid motion in the table plane (a rotation
+        about the vertical, then a shift) that best maps ``goal`` (V, 3) onto the cloth
+        ``x`` (V, 3) (least squares, 2-D Kabsch): the pose of the cloth's own frame."""
+        return _planar_pose(x, goal)
+
     def aligned_goal(self, x, goal):
         """``goal`` (V, 3) moved by the rigid motion in the table plane (a rotation about
         the vertical and a shift) that best maps it onto the cloth ``x`` (least squares)."""
-        rot, shift = _planar_pose(x, goal)
+        rot, shift = self.goal_pose(x, goal)
         return jnp.concatenate([mm(goal[:, :2], rot.T) + shift, goal[:, 2:]], 1)
 
     def distance(self, physics, goal):

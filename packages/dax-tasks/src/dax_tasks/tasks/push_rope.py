@@ -309,6 +309,13 @@ class PushRope(MPMEnv):
                     self._template)
             return np.asarray(state.x, np.float32)
 
+    def goal_pose(self, x, goal):
+        """``(rot (2, 2), shift (2,))`` [m]: the motion in the table plane that
+        :meth:`aligned_goal` moves the goal by (no rotation; the mean x offset of the rope
+        ``x`` (N, 3) from ``goal`` (N, 3) along the goal line)."""
+        dx = jnp.mean(x[:, 0] - goal[:, 0])
+        return jnp.eye(2, dtype=x.dtype), jnp.stack([dx, jnp.zeros_like(dx)])
+
     def aligned_goal(self, x, goal):
         """``goal`` (N, 3) slid along the goal line (x) by the mean x offset of the rope
         ``x`` (N, 3) from it, the least-squares shift along the line."""
