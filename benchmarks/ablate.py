@@ -163,6 +163,12 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
         yield _json_safe(rec)
 
 
+def _mean_or_none(values):
+    """The mean of the values that are not ``None`` (``None`` if every one is)."""
+    xs = [v for v in values if v is not None]
+    return float(np.mean(xs)) if xs else None
+
+
 def _json_safe(x):
     """``x`` with non-finite floats as ``None`` (JSON has no NaN)."""
     if isinstance(x, float):
@@ -199,8 +205,9 @@ def summarise(records: list[dict]) -> list[dict]:
                     "minus_baseline_se": dse,
                     "better": bool(len(paired) > 1 and dmean > 2 * dse),
                     "grad_norm_median": _median_norm(runs.values()),
-                    "env_steps_per_s": float(np.mean([r["env_steps_per_s"]
-                                                      for r in runs.values()]))})
+                    # None for a method trained on demonstrations only (Transporter)
+                    "env_steps_per_s": _mean_or_none([r["env_steps_per_s"]
+                                                      for r in runs.values()])})
     return out
 
 

@@ -38,6 +38,16 @@ def test_summary_pairs_variants_with_the_baseline_by_seed():
     assert math.isnan(out["baseline"]["minus_baseline"]) and not out["baseline"]["better"]
 
 
+def test_a_method_without_env_steps_summarises_without_a_rate():
+    """Transporter trains on demonstrations only: its records have no env steps per
+    second, and its summary says none (a run once crashed here after its first seed)."""
+    records = [{**_rec("baseline", s, 0.4 + 0.01 * s), "method": "transporter",
+                "env_steps_per_s": None} for s in range(2)]
+    (summary,) = ablate.summarise(records)
+    assert summary["env_steps_per_s"] is None
+    assert summary["score_mean"] == pytest.approx(0.405)
+
+
 def test_a_resumed_run_reads_the_records_and_drops_a_torn_line(tmp_path):
     path = tmp_path / "ablate.jsonl"
     assert ablate.read_records(path) == []
