@@ -48,16 +48,17 @@ def _fifths_delta(scores) -> float:
     return float(ys[-k:].mean() - ys[-2 * k:-k].mean())
 
 
-def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], str, int]:
-    """``(rows, budget, stale rows left out)``: one dict per (task, learner) with curves
-    or learner rows in the grid at ``path``: env steps and updates per seed, the mean
-    training wall time, the per-seed fifths ``Δ`` (mean, SE), the evaluation score's SE,
-    the number of seeds and the verdict (see the module docstring)."""
+def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], str, str]:
+    """``(rows, budget, stale note)`` (:func:`benchmarks.findings.stale_note`): one dict
+    per (task, learner) with curves or learner rows in the grid at ``path``: env steps and
+    updates per seed, the mean training wall time, the per-seed fifths ``Δ`` (mean, SE),
+    the evaluation score's SE, the number of seeds and the verdict (see the module
+    docstring)."""
     from dax_algos import registry
     from dax_algos.bench import learning, report
     from dax_algos.method import LearnerMethod
 
-    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    rows, budget, note = _grid_rows(path, budget, include_stale)
     full = Path(path)
     if not full.is_dir():
         from benchmarks._report import ROOT
@@ -107,12 +108,12 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
                             wall_s=float(np.mean(walls)) if walls else math.nan,
                             delta=d_mean, delta_se=d_se, eval_se=eval_se, n=n,
                             verdict=verdict, curve=lp.name if by_seed else None))
-    return out, budget, n_stale
+    return out, budget, note
 
 
 def render_table(path, budget=None, include_stale=False) -> str:
     """The budget table of the grid at ``path`` (Markdown)."""
-    rows, budget, n_stale = curve_budgets(path, budget, include_stale)
+    rows, budget, note = curve_budgets(path, budget, include_stale)
     if not rows:
         raise ValueError(f"{path}: no learner rows in it")
     lines = ["| task | method | env steps / seed | updates | training wall (s) | "
@@ -126,7 +127,7 @@ def render_table(path, budget=None, include_stale=False) -> str:
             f"{r['wall_s']:.0f} | {delta} | {r['eval_se']:.3f} | {r['verdict']} | "
             f"{'`' + r['curve'] + '`' if r['curve'] else '—'} |")
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
-              + (f", {n_stale} stale rows left out" if n_stale else "")
+              + note
               + f", {rows[0]['n']} training seeds per row where all ran. Curve: per update, "
               "the mean final-step r_gt of the training episodes that ended in it. Δ: per "
               "seed, the mean over the last fifth of the updates minus the fifth before, mean "

@@ -59,10 +59,32 @@ FINDINGS = (
 )
 
 
+#: A stale row's reason (:func:`dax_algos.bench.provenance.stale_reason`), in short.
+_STALE_KINDS = (("spec changed", "the task's spec changed"),
+                ("code changed", "the dax-tasks or dax-physics code changed"),
+                ("config changed", "the method's config changed"),
+                ("", "its provenance is unknown or it cannot be checked"))
+
+
+def stale_note(reasons: list[str], n_rows: int, included: bool) -> str:
+    """The footer phrase for the stale rows of a table (``""`` when none is): how many,
+    left out or included, and, when included, why each is stale (counted by kind)."""
+    if not reasons:
+        return ""
+    if not included:
+        return f", {len(reasons)} stale rows left out"
+    counts: dict = {}
+    for why in reasons:
+        kind = next(text for key, text in _STALE_KINDS if key in why)
+        counts[kind] = counts.get(kind, 0) + 1
+    return (f", **{len(reasons)} of {n_rows} rows are stale** and included (measured before "
+            + "; ".join(f"{text}: {n}" for text, n in counts.items()) + ")")
+
+
 def _grid_rows(path, budget=None, include_stale=False):
-    """``(rows that count, budget, stale rows left out)`` of a grid directory or results
-    CSV: the latest row per run, of ``budget`` (default: the last row's), stale rows left
-    out unless ``include_stale``."""
+    """``(rows that count, budget, stale note)`` of a grid directory or results CSV: the
+    latest row per run, of ``budget`` (default: the last row's), stale rows left out
+    unless ``include_stale``; the note (:func:`stale_note`) says which."""
     from benchmarks._report import ROOT
     from dax_algos.bench import provenance, rundir, summary
     from dax_algos.bench.rows import latest, read_rows
@@ -76,8 +98,9 @@ def _grid_rows(path, budget=None, include_stale=False):
     budget = summary.budgets(rows, budget)
     today = summary.today_of(rundir.read_run_file(csv_path.parent))
     rows = [r for r in rows if r["budget"] == budget]
-    fresh = [r for r in rows if include_stale or not provenance.stale_reason(r, today)]
-    return fresh, budget, len(rows) - len(fresh)
+    reasons = [provenance.stale_reason(r, today) for r in rows]
+    fresh = [r for r, why in zip(rows, reasons, strict=True) if include_stale or not why]
+    return fresh, budget, stale_note([w for w in reasons if w], len(rows), include_stale)
 
 
 def _stats(rows, col="score"):
@@ -126,7 +149,7 @@ def findings(rows) -> list[dict]:
 
 def render_findings(path, budget=None, include_stale=False) -> str:
     """The findings table of the grid at ``path`` (see the module docstring)."""
-    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    rows, budget, note = _grid_rows(path, budget, include_stale)
     lines = ["| finding | claim | tasks measured | verdict | where it fails (a − b ± SE) |",
              "|---|---|---|---|---|"]
     for f in findings(rows):
@@ -135,7 +158,7 @@ def render_findings(path, budget=None, include_stale=False) -> str:
         lines.append(f"| {f['finding'].name} | {f['finding'].text} | "
                      f"{', '.join(f['measured']) or '—'} | {f['verdict']} | {fails or '—'} |")
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
-              + (f", {n_stale} stale rows left out" if n_stale else "") + ". `a > b`: a above "
+              + note + ". `a > b`: a above "
               "b by more than 2 SE; `a ≥ b`: a not below b by more than 2 SE (SE of the "
               "difference from each row kind's SE: learners over training seeds, planners "
               "over episodes)."]
@@ -170,7 +193,7 @@ def render_untrained(path, budget=None, include_stale=False) -> str:
     import dax_tasks
     from dax_algos import registry
 
-    rows, budget, n_stale = _grid_rows(path, budget, include_stale)
+    rows, budget, note = _grid_rows(path, budget, include_stale)
     found = versus_untrained(rows)
     order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
     methods = {m: i for i, m in enumerate(registry.names())}
@@ -187,7 +210,7 @@ def render_untrained(path, budget=None, include_stale=False) -> str:
                      f"{cell(f['untrained'])} | {cell(f['difference'])} | {f['verdict']} |")
     counts = {v: sum(f["verdict"] == v for f in found) for v in ("above", "within", "below")}
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
-              + (f", {n_stale} stale rows left out" if n_stale else "")
+              + note
               + f": {counts['above']} above, {counts['within']} within, {counts['below']} "
               "below. Mean ± SE over training seeds; the difference is paired by seed (the "
               "same evaluation starts); above / below: by more than 2 SE."]

@@ -120,16 +120,22 @@ FILE_KINDS = {
 }
 
 
-def render_file_kind(kind: str, paths) -> str:
-    """The table of ``kind`` (:data:`FILE_KINDS`) from the result files ``paths``."""
+#: The kinds rendered from a grid directory's rows, which take ``--include-stale``.
+GRID_KINDS = ("findings", "untrained", "budgets", "training_throughput")
+
+
+def render_file_kind(kind: str, paths, include_stale: bool = False) -> str:
+    """The table of ``kind`` (:data:`FILE_KINDS`) from the result files ``paths`` (a
+    grid's stale rows counted too with ``include_stale``, :data:`GRID_KINDS` only)."""
     import importlib
 
     module, function, _, _ = FILE_KINDS[kind]
     render_fn = getattr(importlib.import_module(module), function, None)
     if render_fn is None:
         raise ValueError(f"{module} has no {function}")
+    extra = {"include_stale": True} if include_stale else {}
     try:
-        text = render_fn(*[Path(p) for p in paths])
+        text = render_fn(*[Path(p) for p in paths], **extra)
     except (KeyError, TypeError, IndexError, AttributeError) as err:  # a file of another kind
         raise ValueError(f"{' '.join(map(str, paths))}: not a {kind} result file "
                          f"({type(err).__name__}: {err})") from None
@@ -150,10 +156,14 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default=None, choices=("quick", "full"))
     s.add_argument("--include-stale", action="store_true",
                    help="count stale rows (marked †)")
-    for kind, (_, _, what, nargs) in FILE_KINDS.items():
+    for kind, (module, function, what, nargs) in FILE_KINDS.items():
         k = sub.add_parser(kind, help=what)
         k.add_argument("paths", nargs=nargs, metavar="FILE",
                        help="result file(s), relative to the repository root or absolute")
+        if kind in GRID_KINDS:
+            k.add_argument("--include-stale", action="store_true",
+                           help="count a grid's stale rows too (the footer says how many "
+                                "and why)")
     for name, what in (("check", "exit 1 if a README's generated block differs from what "
                                  "its command renders now"),
                        ("update", "rewrite every README's generated blocks")):
@@ -170,7 +180,7 @@ def render(argv) -> str:
         return render_scores(args.path, args.tasks, args.methods, args.budget,
                              args.include_stale)
     if args.kind in FILE_KINDS:
-        return render_file_kind(args.kind, args.paths)
+        return render_file_kind(args.kind, args.paths, getattr(args, "include_stale", False))
     raise ValueError(f"{args.kind} renders no table")
 
 

@@ -41,7 +41,7 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
         "transporter": [0.6, 0.62], "random": [0.3, 0.3]})
     rows, budget, stale = budgets.curve_budgets(grid, include_stale=True)
     out = {r["method"]: r for r in rows}
-    assert budget == "full" and stale == 0 and "random" not in out
+    assert budget == "full" and "rows are stale" in stale and "random" not in out
     assert out["apg"]["verdict"] == "flat" and out["apg"]["delta"] == pytest.approx(0.0)
     assert out["ild"]["verdict"] == "rising"
     assert out["ild"]["delta"] == pytest.approx(0.04) and out["ild"]["eval_se"] < 0.04

@@ -69,3 +69,16 @@ def test_learners_against_their_untrained_policy_are_paired_by_seed(tmp_path):
 def test_a_path_without_results_is_refused_naming_it(tmp_path):
     with pytest.raises(ValueError, match="no results.csv"):
         findings.render_findings(tmp_path / "nothing")
+
+
+def test_stale_rows_are_counted_by_why_when_included_and_left_out_otherwise():
+    reasons = ["the dax-tasks or dax-physics code changed (fingerprint a, today b)",
+               "the method's config changed (config c, today d)",
+               "the dax-tasks or dax-physics code changed (fingerprint a, today b); the "
+               "method's config changed (config c, today d)"]
+    assert findings.stale_note([], 5, True) == ""
+    assert findings.stale_note(reasons, 5, False) == ", 3 stale rows left out"
+    note = findings.stale_note(reasons, 5, True)
+    assert "**3 of 5 rows are stale** and included" in note
+    assert "the dax-tasks or dax-physics code changed: 2" in note
+    assert "the method's config changed: 1" in note
