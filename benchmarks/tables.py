@@ -156,7 +156,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default=None, choices=("quick", "full"))
     s.add_argument("--include-stale", action="store_true",
                    help="count stale rows (marked †)")
-    for kind, (module, function, what, nargs) in FILE_KINDS.items():
+    for kind, (_, _, what, nargs) in FILE_KINDS.items():
         k = sub.add_parser(kind, help=what)
         k.add_argument("paths", nargs=nargs, metavar="FILE",
                        help="result file(s), relative to the repository root or absolute")
