@@ -59,7 +59,8 @@ from dax_tasks.io import atomic_write
 #: from random starts (``aligned``), Transporter's goal picture of the unaligned goal
 #: (``aligned_goal``, ``no_goal``) and its augmentation against starts at any heading
 #: (``rotate_any``), an MLP policy that sees a cloth at any place and heading in table
-#: coordinates (``object_frame``: :class:`dax_tasks.ObjectFrame`).
+#: coordinates (``object_frame``: :class:`dax_tasks.ObjectFrame`), a PPO budget in which
+#: no training episode reaches its end (``whole_episodes``).
 VARIANTS = {
     "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "object_frame": {"frame": "object"},
@@ -72,6 +73,8 @@ VARIANTS = {
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
+            # fewer envs, longer unrolls: every env finishes several episodes in training
+            "whole_episodes": {"num_envs": 8, "unroll_length": 12, "total_env_steps": 1920},
             "lr_high": {"learning_rate": 3e-3}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
