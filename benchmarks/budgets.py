@@ -18,7 +18,8 @@ machine) and whether the curve has flattened by its end:
   the score by less than its SE); else *rising* or *falling* when ``|Δ|`` is also more
   than 2 SE of ``Δ`` over seeds (a move the curves' noise does not explain), and *noisy*
   when it is not (the curve cannot tell). A run with fewer than 10 scored updates cannot
-  be split in fifths: *too short*.
+  be split in fifths: *too short*; one in which no training episode reached its end
+  (fewer env steps per env than the horizon) has no score at all: *no episode ended*.
 
 A learner without environment steps (Transporter, trained on demonstrations only) has no
 curve in the file; its row gives its Adam steps and wall time and the verdict ``no
@@ -93,8 +94,11 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
             _, eval_se, n = stats.get((task, method), (math.nan, math.nan, len(mine)))
             finite = [d for d in deltas if math.isfinite(d)]
             d_mean, d_se = report.mean_se(finite) if finite else (math.nan, math.nan)
+            scored = any(math.isfinite(c["score"]) for rs in by_seed.values() for c in rs)
             if not by_seed:
                 verdict = "no curve"
+            elif not scored:
+                verdict = "no episode ended"
             elif not finite:
                 verdict = "too short"
             elif abs(d_mean) < eval_se:

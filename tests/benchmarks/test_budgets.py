@@ -37,8 +37,9 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
         ("ild", 0): rising, ("ild", 1): [y + 0.01 for y in rising],
         ("shac", 0): noisy_a, ("shac", 1): noisy_b,
         ("ppo", 0): [0.4] * 6, ("ppo", 1): [0.4] * 6,
+        ("transporter_rgb", 0): [float("nan")] * 12,  # (a curve with no score in it)
     }, {"apg": [0.40, 0.42], "ild": [0.50, 0.52], "shac": [0.40, 0.42], "ppo": [0.4, 0.41],
-        "transporter": [0.6, 0.62], "random": [0.3, 0.3]})
+        "transporter": [0.6, 0.62], "transporter_rgb": [0.5], "random": [0.3, 0.3]})
     rows, budget, stale = budgets.curve_budgets(grid, include_stale=True)
     out = {r["method"]: r for r in rows}
     assert budget == "full" and "rows are stale" in stale and "random" not in out
@@ -50,6 +51,7 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
         pytest.approx(0.1))
     assert out["ppo"]["verdict"] == "too short" and math.isnan(out["ppo"]["delta"])
     assert out["transporter"]["verdict"] == "no curve"
+    assert out["transporter_rgb"]["verdict"] == "no episode ended"
     assert out["transporter"]["wall_s"] == pytest.approx(5.0)
     assert (out["apg"]["env_steps"], out["apg"]["updates"], out["apg"]["wall_s"]) == (
         240, 20, 40.0)
