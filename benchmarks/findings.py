@@ -161,8 +161,68 @@ def render_findings(path, budget=None, include_stale=False) -> str:
               + note + ". `a > b`: a above "
               "b by more than 2 SE; `a ≥ b`: a not below b by more than 2 SE (SE of the "
               "difference from each row kind's SE: learners over training seeds, planners "
-              "over episodes)."]
+              "over episodes)." + equal_time_text(path, rows)]
     return "\n".join(lines) + "\n"
+
+
+#: The comparison the learners issue asks for at equal wall-clock training time: a
+#: gradient method against PPO on Whip-Rope.
+EQUAL_TIME = ("whip_rope", ("apg", "shac"), "ppo")
+
+
+def training_seconds(path, rows) -> dict:
+    """``{(task, method): mean training wall time per seed [s]}`` of the learners with a
+    learning curve in the grid at ``path`` (the curve's last cumulative ``wall_s``: training
+    only, evaluation excluded), for the runs in ``rows``."""
+    from benchmarks._report import ROOT
+    from dax_algos.bench import learning
+
+    full = Path(path) if Path(path).is_dir() else ROOT / path
+    out: dict = {}
+    for task in sorted({r["task"] for r in rows}):
+        runs = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows
+                if r["task"] == task and r["status"] == "ok"}
+        lp = learning.learning_path(full, task)
+        if not lp.exists():
+            continue
+        last: dict = {}
+        for c in learning.read_curves(lp, keep=runs):
+            k = (c["method"], c["seed"])
+            if c["update"] >= last.get(k, (-1, 0.0))[0]:
+                last[k] = (c["update"], c["wall_s"])
+        for method in {m for m, _ in last}:
+            walls = [w for (m, _), (_, w) in last.items() if m == method]
+            out[task, method] = float(np.mean(walls))
+    return out
+
+
+def equal_time_text(path, rows) -> str:
+    """A sentence on :data:`EQUAL_TIME`: each gradient method's score and training time
+    against PPO's, and whether it is above PPO by more than 2 SE with no more training time
+    than PPO had (then it is above at equal time too, PPO having had as long or longer);
+    ``""`` when the grid has no such pair."""
+    task, grads, base = EQUAL_TIME
+    stats, secs = _stats(rows), training_seconds(path, rows)
+    parts = []
+    for g in grads:
+        check = check_claim(stats, task, g, ">", base)
+        if check is None or (task, g) not in secs or (task, base) not in secs:
+            continue
+        holds, diff, se = check
+        tg, tb = secs[task, g], secs[task, base]
+        if holds and tg <= tb:
+            verdict = "above at equal time (it trained no longer)"
+        elif holds:
+            verdict = (f"above, but it trained {tg / tb:.1f}x as long: not yet an "
+                       "equal-time comparison")
+        else:
+            verdict = "not above"
+        parts.append(f"{g} {diff:+.3f} ± {se:.3f} against {base}, training {tg:.0f} s "
+                     f"against {tb:.0f} s per seed: {verdict}")
+    if not parts:
+        return ""
+    return (f" At equal wall-clock training time on {task} (training only, mean over seeds, "
+            "from the learning curves): " + "; ".join(parts) + ".")
 
 
 def versus_untrained(rows) -> list[dict]:

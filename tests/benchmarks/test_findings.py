@@ -82,3 +82,28 @@ def test_stale_rows_are_counted_by_why_when_included_and_left_out_otherwise():
     assert "**3 of 5 rows are stale** and included" in note
     assert "the dax-tasks or dax-physics code changed: 2" in note
     assert "the method's config changed: 1" in note
+
+
+def test_whip_rope_is_compared_at_equal_training_time(tmp_path):
+    """APG above PPO on Whip-Rope counts as an equal-time result only when APG trained no
+    longer than PPO (the learning curves' training wall time)."""
+    from dax_algos.bench import learning
+
+    grid = _grid(tmp_path, {("whip_rope", "apg"): [0.59, 0.60, 0.61],
+                            ("whip_rope", "ppo"): [0.29, 0.30, 0.31]})
+
+    def curves(apg_s, ppo_s):
+        path = learning.learning_path(grid, "whip_rope")
+        path.unlink(missing_ok=True)
+        for method, secs in (("apg", apg_s), ("ppo", ppo_s)):
+            for seed in range(3):
+                learning.append_curve(path, [dict(
+                    task="whip_rope", method=method, seed=seed, budget="full", update=u,
+                    env_steps=10.0 * (u + 1), wall_s=secs * (u + 1) / 2, score=0.5)
+                    for u in range(2)])
+        rows = findings._grid_rows(grid, include_stale=True)[0]
+        return findings.equal_time_text(grid, rows)
+
+    assert "apg +0.300 ± 0.008 against ppo, training 100 s against 120 s per seed: above " \
+           "at equal time" in curves(100.0, 120.0)
+    assert "trained 2.0x as long: not yet an equal-time comparison" in curves(240.0, 120.0)
