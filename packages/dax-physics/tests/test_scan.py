@@ -20,14 +20,16 @@ C0 = jnp.linspace(0.1, 0.9, 4)
 XS = jnp.linspace(-1.0, 1.0, 23 * 4).reshape(23, 4)
 
 
+@pytest.mark.parametrize("short_last", [False, True])
 @pytest.mark.parametrize("segment", [None, 1, 5, 7, 23, 40])
-def test_equals_a_plain_scan_for_every_segment_length(segment):
+def test_equals_a_plain_scan_for_every_segment_length(segment, short_last):
     want_c, want_y = jax.lax.scan(_body, C0, XS)
-    got_c, got_y = jax.jit(lambda c, xs: checkpointed_scan(_body, c, xs, segment=segment))(
-        C0, XS)
-    np.testing.assert_array_equal(got_c, want_c, err_msg=f"carry, segment={segment}")
+    got_c, got_y = jax.jit(lambda c, xs: checkpointed_scan(
+        _body, c, xs, segment=segment, short_last=short_last))(C0, XS)
+    what = f"segment={segment}, short_last={short_last}"
+    np.testing.assert_array_equal(got_c, want_c, err_msg=f"carry, {what}")
     assert got_y.shape == want_y.shape == (23,), f"ys shape {got_y.shape}"
-    np.testing.assert_array_equal(got_y, want_y, err_msg=f"ys, segment={segment}")
+    np.testing.assert_array_equal(got_y, want_y, err_msg=f"ys, {what}")
 
 
 def test_gradients_equal_with_and_without_checkpointing():
@@ -35,11 +37,19 @@ def test_gradients_equal_with_and_without_checkpointing():
         c, ys = checkpointed_scan(_body, c0, XS, segment=segment)
         return jnp.sum(c) + jnp.sum(ys)
 
+    def loss_short(c0, segment):
+        c, ys = checkpointed_scan(_body, c0, XS, segment=segment, short_last=True)
+        return jnp.sum(c) + jnp.sum(ys)
+
     plain = jax.grad(lambda c: loss(c, None))(C0)
-    for segment in (5, 7):  # 5 x 5 (2 skipped), 4 x 6 (1 skipped)
-        seg = jax.grad(lambda c, s=segment: loss(c, s))(C0)
-        np.testing.assert_allclose(seg, plain, rtol=1e-6,
-                                   err_msg=f"gradient with segment={segment}")
+    for segment in (5, 7):  # 5 x 5 (2 skipped), 4 x 6 (1 skipped); short: 4 x 5 + 3, 3 x 6 + 5
+        for f in (loss, loss_short):
+            seg = jax.grad(lambda c, s=segment, f=f: f(c, s))(C0)
+            np.testing.assert_allclose(seg, plain, rtol=1e-6,
+                                       err_msg=f"gradient with segment={segment}, {f.__name__}")
+    c, ys = checkpointed_scan(lambda c, _: (c + 1, None), jnp.zeros(()), length=10, segment=3,
+                              short_last=True)
+    assert float(c) == 10.0 and ys is None, f"short_last without xs: carry {c}, ys {ys}"
 
 
 def test_length_without_xs_and_bad_arguments():

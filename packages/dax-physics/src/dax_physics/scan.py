@@ -13,8 +13,11 @@ divide ``n``, the ``k L - n`` surplus steps (fewer than ``k``, so less than ``1 
 the work) come last; they are computed and discarded (a select keeps the carry, and their
 outputs are dropped), which keeps the body one inlined computation: a ``lax.cond`` would
 compile it as a separate one and change the float results of the real steps. Equal
-segments compile one segment body, not two. ``segment=None`` (or ``segment >= n``) is a
-plain scan with no checkpointing.
+segments compile one segment body, not two. With ``short_last=True`` the same ``k``
+segments are run without surplus steps instead: ``k - 1`` of ``L`` steps, then the last
+with the ``n - (k - 1) L`` left, as a second scan of the body (compiled twice, no select
+on every step's carry). ``segment=None`` (or ``segment >= n``) is a plain scan with no
+checkpointing.
 Examples: 200 steps, segment 20: 10 x 20; 36 steps, segment 10: 4 x 9; 50 steps, segment
 20: 3 x 17 with one skipped step.
 """
@@ -54,7 +57,7 @@ def segment_layout(n: int, segment: int | None) -> tuple[int, int]:
 
 
 def checkpointed_scan(body, carry, xs=None, *, length: int | None = None,
-                      segment: int | None = None, unroll: int = 1):
+                      segment: int | None = None, unroll: int = 1, short_last: bool = False):
     """``jax.lax.scan(body, carry, xs, length)`` in checkpointed segments.
 
     body: ``body(carry, x) -> (carry, y)``, as for ``lax.scan``; it must be defined (finite)
@@ -62,6 +65,11 @@ def checkpointed_scan(body, carry, xs=None, *, length: int | None = None,
     segment: the most steps per checkpointed segment (see the module docstring for how
         the steps are split); ``None`` for a plain scan.
     unroll: passed to the inner ``lax.scan``.
+    short_last: where ``L`` does not divide ``n``, run the last of the ``k`` segments with
+        its ``n - (k - 1) L`` steps only, as a scan of its own, instead of computing and
+        discarding surplus steps: no select on every step's carry, at the price of a
+        second compiled copy of ``body`` (longer compiles; the same checkpoints). For a
+        body whose carry is large next to its work (the cloth's neighbour list).
     Returns ``(carry, ys)`` with ``ys`` stacked over all ``n`` steps, as ``lax.scan`` does.
     """
     n = _scan_length(xs, length)
@@ -69,6 +77,24 @@ def checkpointed_scan(body, carry, xs=None, *, length: int | None = None,
     if k == 1:
         return jax.lax.scan(body, carry, xs, length=n, unroll=unroll)
     total = k * seg_len
+    if total > n and short_last:
+        head_n = (k - 1) * seg_len
+
+        @jax.checkpoint
+        def run_head(c, seg_xs):
+            return jax.lax.scan(body, c, seg_xs, length=seg_len, unroll=unroll)
+
+        @jax.checkpoint
+        def run_last(c, last_xs):
+            return jax.lax.scan(body, c, last_xs, length=n - head_n, unroll=unroll)
+
+        head = jax.tree_util.tree_map(
+            lambda a: a[:head_n].reshape(k - 1, seg_len, *a.shape[1:]), xs)
+        carry, ys = jax.lax.scan(run_head, carry, head, length=k - 1)
+        carry, ys_last = run_last(carry, jax.tree_util.tree_map(lambda a: a[head_n:], xs))
+        ys = jax.tree_util.tree_map(
+            lambda a, b: jnp.concatenate([a.reshape(head_n, *a.shape[2:]), b]), ys, ys_last)
+        return carry, ys
     step = body
     if total > n:  # the surplus steps at the end leave the carry as it is
         def step(c, inp):

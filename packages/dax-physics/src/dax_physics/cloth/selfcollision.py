@@ -355,8 +355,9 @@ def _list_forces(cfg, nbrs: NeighbourList, xt, vt):
     """Forces (3, V) of the pairs of ``nbrs``, over the smallest slot tier that holds them
     (none when the list is empty)."""
     sizes = _tier_sizes(nbrs.pairs.shape[1])
-    tier = jnp.sum(jnp.stack([nbrs.count > s for s in sizes[:-1]] + [nbrs.count > 0]),
-                   dtype=jnp.int32)
+    # one comparison against a constant array: a stack of scalar comparisons is a loop
+    # per tier on XLA:CPU, run every substep
+    tier = jnp.sum(nbrs.count > jnp.asarray(sizes[:-1] + (0,), jnp.int32), dtype=jnp.int32)
     branches = [lambda p, xt, vt: jnp.zeros_like(xt)] + [
         lambda p, xt, vt, n=n: _listed_pairs_forces(cfg, p[:, :n], xt, vt) for n in sizes]
     return jax.lax.switch(_batch_max(tier), branches, nbrs.pairs, xt, vt)

@@ -153,11 +153,11 @@ class Cloth:
         :class:`ClothConfig`'s ``friction_static`` and ``friction_dynamic``.
     offsets, stencil_edge, residual: the spring network sorted for a scatter-free force
         sum (:func:`spring_layout`, filled in by :func:`make_cloth`): ``offsets`` (static
-        tuple of S ints) are the index offsets of the stencil slots; ``stencil_edge``
-        (S, V) int32 is the spring between vertex i and vertex ``i + offsets[s]`` (E where
-        there is none); ``residual`` (R,) int32 the springs in no slot. With the defaults
-        (``()``, ``None``, ``None``) every spring is summed with a scatter; the forces are
-        the same up to float rounding either way.
+        tuple of S ints, ``(+o, -o)`` per class) are the index offsets of the stencil
+        slots; ``stencil_edge`` (S, V) int32 is the spring between vertex i and vertex
+        ``i + offsets[s]`` (E where there is none); ``residual`` (R,) int32 the springs in
+        no slot. With the defaults (``()``, ``None``, ``None``) every spring is summed with
+        a scatter; the forces are the same up to float rounding either way.
     """
 
     rest_pos: jnp.ndarray
@@ -238,8 +238,8 @@ def spring_layout(pairs, n_vertices: int, min_share: float = 0.125, max_classes:
 
     A class is an offset ``o > 0`` shared by at least ``min_share * n_vertices`` springs
     ``(i, i + o)`` (a second spring on the same pair of vertices goes to a second class of
-    the same offset; at most ``max_classes`` classes, the largest first: past 16 slots
-    XLA:CPU no longer fuses the slot sum into one loop). Each vertex sums
+    the same offset; at most ``max_classes`` classes, the largest first: past 8 classes
+    XLA:CPU no longer reads the classes' neighbours in one loop). Each vertex sums
     the springs of a class from both ends, ``(i, i + o)`` and ``(i - o, i)``, with the
     vertex arrays shifted by ``+o`` and ``-o``: no gather of positions and no scatter of
     forces, like a stencil on a regular grid.
@@ -445,42 +445,49 @@ def _stencil_spring_forces(cloth: Cloth, xt, vt):
                         cloth.rest_length, cloth.damping, xt, vt)
 
 
-def _shifted(ap, o: int, w: int, V: int):
-    """``a`` (3, V) read at index ``i + o`` for every i, zero outside: a static slice of
-    ``ap``, ``a`` padded by ``w >= |o|`` zeros on both sides."""
-    return ap[:, w + o:w + o + V]
-
-
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _stencil_sum(offsets, table, pairs, k, L, c, xt, vt):
     """``f_i = sum_s (k (ln - L) + c dv.u) u`` with ``d = x_{i + o_s} - x_i``, ``u = d / ln``,
-    over the stencil slots (``offsets`` a static tuple, ``table`` (S, V) the slots' springs,
-    E for none; k, L, c (E,) per spring).
+    over the stencil slots (``offsets`` a static tuple ``(+o_1, -o_1, +o_2, -o_2, ...)``,
+    ``table`` (S, V) the slots' springs, E for none, row ``2 c + 1`` being row ``2 c`` shifted
+    by ``o_c``, as :func:`spring_layout` makes them; k, L, c (E,) per spring).
 
-    Two loops: the slots' scalar factors ``s`` (S, V) first, each element computing its
-    own square root and division, then the sum ``f = sum_s s d``, which recomputes the
-    differences d (cheap). In one loop XLA would not repeat a slot's square root for each
-    of the three components of f and gives every slot's length and inverse a loop of its
-    own. The positions and velocities are padded once, by the largest offset: every slot
-    reads a slice of the same padded arrays, which XLA fuses (a pad per slot is a copy per
-    slot)."""
-    zero = jnp.zeros((1,), k.dtype)
-    ks, Ls, cs = (jnp.concatenate([a, zero])[table] for a in (k, L, c))  # E: k = c = L = 0
+    Two loops. The first computes each class's spring factor ``s`` once per spring, at
+    its lower end, as one (C, V + w) array (w the largest offset; index ``w + i`` is the
+    spring ``(i, i + o_c)``, the w leading entries are no spring): the class's neighbour
+    positions and velocities are read as one stacked (C, 6, V + w) slice of the padded
+    ``[x; v]``, so every class shares one loop (computed slot by slot, XLA:CPU gave each
+    slot's square root, division and factor loops of their own). The second sums
+    ``f_i = sum_c s_c(i) d_c(i) - s_c(i - o_c) d_c(i - o_c)`` in the slot order,
+    recomputing the differences (cheap): the slot ``-o_c`` of vertex i is the spring
+    ``(i - o_c, i)``, whose factor is the same number, so the forces equal those of a
+    factor per slot bit for bit."""
+    plus = offsets[0::2]
+    if tuple(offsets[1::2]) != tuple(-o for o in plus) or min(plus) <= 0:
+        raise ValueError(f"stencil offsets must be (+o, -o) pairs with o > 0, got {offsets}")
     V = xt.shape[1]
-    w = max(abs(o) for o in offsets)
-    xp, vp = (jnp.pad(a, ((0, 0), (w, w))) for a in (xt, vt))
-    ds = [_shifted(xp, o, w, V) - xt for o in offsets]
-    factors = []
-    for slot, o in enumerate(offsets):
-        d, dv = ds[slot], _shifted(vp, o, w, V) - vt
-        ln = jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + _TINY)
-        inv = 1.0 / ln
-        factors.append((ks[slot] * (ln - Ls[slot])
-                        + cs[slot] * (dv[0] * d[0] + dv[1] * d[1] + dv[2] * d[2]) * inv) * inv)
-    s = materialise(jnp.stack(factors))
-    f = jnp.stack([sum(s[slot] * ds[slot][q] for slot in range(len(offsets)))
-                   for q in range(3)])
-    return materialise(f)
+    w = max(plus)
+    n = V + w
+    zero = jnp.zeros((1,), k.dtype)
+    tp = jnp.pad(table[0::2], ((0, 0), (w, 0)), constant_values=k.shape[0])  # (C, n)
+    ks, Ls, cs = (jnp.concatenate([a, zero])[tp] for a in (k, L, c))  # E: k = c = L = 0
+    xvp = jnp.pad(jnp.concatenate([xt, vt]), ((0, 0), (w, w)))  # (6, V + 2w)
+    D = jnp.stack([xvp[:, o:o + n] for o in plus]) - xvp[None, :, :n]  # (C, 6, n)
+    d, dv = D[:, :3], D[:, 3:]
+    ln = jnp.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] + _TINY)
+    inv = 1.0 / ln
+    s = materialise((ks * (ln - Ls)
+                     + cs * (dv[:, 0] * d[:, 0] + dv[:, 1] * d[:, 1] + dv[:, 2] * d[:, 2])
+                     * inv) * inv)  # (C, n)
+    f = []
+    for q in range(3):
+        xq = xvp[q, w:w + V]
+        terms = []
+        for cl, o in enumerate(plus):
+            terms.append(s[cl, w:w + V] * (xvp[q, w + o:w + o + V] - xq))
+            terms.append(s[cl, w - o:w - o + V] * (xvp[q, w - o:w - o + V] - xq))
+        f.append(sum(terms))
+    return materialise(jnp.stack(f))
 
 
 def _stencil_sum_fwd(offsets, table, pairs, k, L, c, xt, vt):
@@ -490,7 +497,7 @@ def _stencil_sum_fwd(offsets, table, pairs, k, L, c, xt, vt):
 def _stencil_sum_bwd(offsets, res, g):
     """Reverse pass: the autodiff of the same springs summed per spring with a scatter
     (:func:`_scatter_spring_forces`), whose transpose is gathers where the slot sum's would
-    be sixteen padded slices per substep; the two agree to rounding."""
+    be a padded slice per slot and substep; the two agree to rounding."""
     table, pairs, k, L, c, xt, vt = res
     in_stencil = jnp.zeros(k.shape[0] + 1, k.dtype).at[table.reshape(-1)].set(1.0)[:-1]
 
@@ -703,7 +710,9 @@ def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, 
     with ``cfg``, ``n_substeps`` and ``segment`` static).
 
     segment: substeps per checkpointed segment (:func:`dax_physics.checkpointed_scan`,
-        whose remainder rule applies), so reverse-mode memory grows with the number of
+        with ``short_last=True``: a last segment of the substeps left, not surplus substeps
+        whose carry, neighbour list included, would be selected on every substep), so
+        reverse-mode memory grows with the number of
         segments rather than substeps; ``None``: no checkpointing. Forward values are the
         same either way up to float rounding (XLA may fuse a segment's substeps differently).
     unroll: passed to the scan.
@@ -731,7 +740,8 @@ def rollout(cfg: ClothConfig, cloth: Cloth, state: ClothState, n_substeps: int, 
     lend = _uses_list(cfg) and state.neighbours is None
     carry = _transposed(with_neighbours(cfg, cloth, state) if lend else state)
     out = _transposed(checkpointed_scan(body, carry, gripper_vel, length=n_substeps,
-                                        segment=segment, unroll=unroll)[0])
+                                        segment=segment, unroll=unroll,
+                                        short_last=True)[0])
     return out.replace(neighbours=None) if lend else out
 
 
