@@ -60,7 +60,8 @@ from dax_tasks.io import atomic_write
 #: (``aligned_goal``, ``no_goal``) and its augmentation against starts at any heading
 #: (``rotate_any``), an MLP policy that sees a cloth at any place and heading in table
 #: coordinates (``object_frame``: :class:`dax_tasks.ObjectFrame`), a PPO budget in which
-#: no training episode reaches its end (``whole_episodes``).
+#: no training episode reaches its end (``whole_episodes``), and with a discount that sees
+#: the end of an MPM episode (``whole_episodes_d99``).
 VARIANTS = {
     "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "object_frame": {"frame": "object"},
@@ -75,6 +76,10 @@ VARIANTS = {
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # fewer envs, longer unrolls: every env finishes several episodes in training
             "whole_episodes": {"num_envs": 8, "unroll_length": 12, "total_env_steps": 1920},
+            # and a discount that sees the episode's end (0.9 per step is a 10-step horizon;
+            # the score is the 50th or 100th step's r_gt on the MPM tasks)
+            "whole_episodes_d99": {"num_envs": 8, "unroll_length": 12,
+                                   "total_env_steps": 1920, "discount": 0.99},
             "lr_high": {"learning_rate": 3e-3}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
