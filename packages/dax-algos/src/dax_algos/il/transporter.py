@@ -9,10 +9,10 @@ the task's camera): the height map (``transporter``) or the RGB picture and the 
 which a height map cannot), with the goal's picture in the same mode stacked on the
 channels (``goal_image``, default on). The macro tasks' goals are shapes, not places: their
 distance compares the object with the goal moved onto the object's pose
-(``aligned_goal``); with ``align_goal`` the goal is pictured so, at every step, which
-tells a fully convolutional network where the goal's parts lie relative to the object it
-sees (without it the goal's picture is the same at every start). Heights are divided by
-``height_scale``.
+(``aligned_goal``); with ``align_goal`` (default) the goal is pictured so, at every
+step, which tells a fully convolutional network where the goal's parts lie relative to the
+object it sees (without it the goal's picture is the same at every start). Heights are
+divided by ``height_scale``.
 
 **Pick (attention).** A fully convolutional network (a small U-Net, :class:`FCN`) gives a
 logit per pixel of its output grid (half the picture's resolution); the pick is the pixel
@@ -73,11 +73,11 @@ class TransporterConfig:
     """rgb: height map and RGB picture (``transporter_rgb``), else the height map only;
     image_size: picture side [pixels] (a multiple of 8); goal_image: the goal's picture as
     more input channels; align_goal: the goal pictured aligned to the object's current
-    pose (the task's ``aligned_goal``; needs ``goal_image``); demos: demonstrations used
-    (of the standard set's 10); width: channels of the FCNs' first layer; features:
-    key/query feature channels; crop: side of the query crop [output-grid pixels, odd; the
-    grid is half the picture's resolution];
-    n_rotations: crop rotations; train_steps, batch_size,
+    pose (the task's ``aligned_goal``; ignored without ``goal_image``); demos:
+    demonstrations used (of the standard set's 10); width: channels of the FCNs' first
+    layer; features: key/query feature channels; crop: side of the query crop
+    [output-grid pixels, odd; the grid is half the picture's resolution]; n_rotations:
+    crop rotations; train_steps, batch_size,
     learning_rate, max_grad_norm: the Adam training; augment_rotation [rad],
     augment_shift [pixels]: augmentation ranges; height_scale [m]: heights are divided by
     it; n_eval: evaluation rollouts."""
@@ -85,7 +85,7 @@ class TransporterConfig:
     rgb: bool = False
     image_size: int = 64
     goal_image: bool = True
-    align_goal: bool = False
+    align_goal: bool = True
     demos: int = 10
     width: int = 16
     features: int = 16
@@ -108,8 +108,6 @@ class TransporterConfig:
                      optional_positive=("max_grad_norm",))
         if self.image_size % 8:
             raise ValueError(f"image_size must be a multiple of 8, got {self.image_size}")
-        if self.align_goal and not self.goal_image:
-            raise ValueError("align_goal pictures the goal: it needs goal_image=True")
         if self.crop % 2 == 0:
             raise ValueError(f"crop must be odd (centred on the pick), got {self.crop}")
 
@@ -151,7 +149,7 @@ def observation_env(env, config: TransporterConfig) -> dax_tasks.ObservationMode
     """The env seen through the pictures the networks take."""
     return dax_tasks.ObservationMode(env, config.mode, config.image_size,
                                      goal_image=config.goal_image,
-                                     align_goal=config.align_goal)
+                                     align_goal=config.goal_image and config.align_goal)
 
 
 # ----------------------------------------------------------------------------- networks
@@ -400,7 +398,7 @@ def data_from_episodes(env, config: TransporterConfig, episodes) -> TransporterD
             height = ep.height[t][..., None]
             cur = (np.concatenate([np.asarray(rgb_as_float(ep.rgb[t])), height], axis=-1)
                    if config.rgb else height)
-            if config.align_goal:
+            if config.goal_image and config.align_goal:
                 if t not in steps:
                     raise ValueError(f"episode {ep.index}: no object points at step {t} "
                                      f"(points at steps {list(steps)}): align_goal needs "
