@@ -150,6 +150,19 @@ def test_a_retry_row_is_valid_only_after_a_failed_row(tmp_path):
         read_rows(path)
 
 
+def test_a_second_row_measured_on_other_code_or_config_is_valid_and_counts(tmp_path):
+    """``--rerun-stale`` appends the run again beside its stale row: valid when the two
+    rows' task fingerprints or config digests differ, and the new one counts."""
+    path = tmp_path / "results.csv"
+    old = dict(task_fingerprint="aaaaaaaaaaaa", config_digest="cccccccccccc")
+    _write(path, [_row(score=0.2, **old),
+                  _row(score=0.7, **{**old, "task_fingerprint": "bbbbbbbbbbbb"})])
+    assert [float(r["score"]) for r in latest(read_rows(path))] == [0.7]
+    _write(path, [_row(score=0.2, **old), _row(score=0.7, **old)])
+    with pytest.raises(ValueError, match="line 3: a second row"):
+        read_rows(path)
+
+
 # ----------------------------------------------------------------------- seeds bounded, lazily
 
 def test_seeds_are_bounded_and_the_grid_is_enumerated_lazily(tmp_path, capsys):

@@ -115,3 +115,30 @@ def test_stale_reason_tells_a_changed_spec_from_changed_code(grid, monkeypatch):
     assert "code changed" in provenance.stale_reason(other_code, today)
     other_spec = dict(other_code, spec_digest="ba9876543210")
     assert "spec changed" in provenance.stale_reason(other_spec, today)
+
+
+def test_rerun_stale_runs_again_only_the_runs_whose_rows_are_stale(grid, monkeypatch,
+                                                                   tmp_path):
+    """After PPO's config changes, a resumed grid leaves the stale PPO rows as they are;
+    with ``rerun_stale`` it runs them again (and not the random rows, still current), and
+    the new rows count."""
+    import shutil
+
+    from dax_algos.bench.rows import latest, read_rows
+
+    out = tmp_path / "grid"
+    shutil.copytree(grid[0], out)
+    ppo = registry.get("ppo")
+    budgets = {**ppo.budgets, "quick": {**ppo.budgets["quick"], "learning_rate": 0.5}}
+    monkeypatch.setitem(registry._METHODS, "ppo", dataclasses.replace(ppo, budgets=budgets))
+    kwargs = dict(seeds=2, out=out, quick=True, task_overrides=OVERRIDES,
+                  method_overrides={"ppo": PPO}, cache_goal=False, progress=False)
+    before = read_rows(out / "results.csv")
+    run_grid(TASK, "random,ppo", **kwargs)
+    assert read_rows(out / "results.csv") == before  # stale rows are done by default
+    run_grid(TASK, "random,ppo", rerun_stale=True, **kwargs)
+    after = read_rows(out / "results.csv")
+    added = after[len(before):]
+    assert sorted((r["method"], r["seed"]) for r in added) == [("ppo", "0"), ("ppo", "1")]
+    today = provenance.Today(OVERRIDES, {"ppo": PPO})
+    assert all(not provenance.stale_reason(r, today) for r in latest(after))

@@ -124,7 +124,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
              command: str | None = None, backend: str = "local",
              ray_address: str | None = None, ray_cpus: float = 1, retry_failed: bool = True,
              max_minutes: float | None = None, include_stale: bool = False,
-             lock_wait: float = 0.0) -> GridRows:
+             lock_wait: float = 0.0, rerun_stale: bool = False) -> GridRows:
     """Run every combination not yet in ``out/results.csv``; returns the row that counts
     for each run in the file (:class:`GridRows`).
 
@@ -143,7 +143,11 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     longer counts); ``False`` leaves failed runs as they are. max_minutes: start no run
     after this many minutes (a run under way finishes; the reports are written; the
     rows returned say what is left); ``None``: no limit. include_stale: the reports count
-    stale rows (:func:`dax_algos.bench.summary.write_reports`).
+    stale rows (:func:`dax_algos.bench.summary.write_reports`). rerun_stale: a run whose
+    row is stale (:func:`dax_algos.bench.provenance.stale_reason`: measured on other
+    dax-tasks / dax-physics code, task spec or method config than today's) is run again;
+    its new row is the one that counts (the old one stays in the file). Default: a run
+    with a row is done, stale or not.
 
     backend: ``"local"`` (this process) or ``"ray"``: every (task, method, seed) is one Ray
     task (:func:`dax_algos.bench.backends.run_ray`) on the cluster at ``ray_address`` (default:
@@ -179,8 +183,14 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
         rundir.record_run(out, rows, config, command or cli_command(
             task_names, method_names, seeds, out, quick, backend, ray_address))
         upgrade(csv_path, rows)
-        plan = Plan(task_names, method_names, seeds, budget, latest(rows), retry_failed,
-                    None if max_minutes is None else time.monotonic() + 60 * max_minutes)
+        today = provenance.Today(task_overrides, method_overrides)
+        current = latest(rows)
+        redo = ({key(r) for r in current if r["task"] in task_names
+                 and r["method"] in method_names and provenance.stale_reason(r, today)}
+                if rerun_stale else set())
+        plan = Plan(task_names, method_names, seeds, budget, current, retry_failed,
+                    None if max_minutes is None else time.monotonic() + 60 * max_minutes,
+                    redo)
         envs = _run_todo(plan, out, task_overrides, method_overrides, cache_goal, progress,
                          demo_dir, backend, dict(address=ray_address, num_cpus=ray_cpus))
         result = GridRows(latest(read_rows(csv_path)))
@@ -192,7 +202,6 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
                                             **task_overrides.get(task, {}))
             return envs[task]
 
-        today = provenance.Today(task_overrides, method_overrides)
         summary.write_reports(result, out, budget, make_env, include_stale, today)
         return result
 
@@ -219,12 +228,14 @@ class Plan:
     """The runs of a grid still to do, enumerated lazily (``(task, method, seed)`` in task,
     method, seed order), with the failed runs' error history and the time limit."""
 
-    def __init__(self, tasks, methods, seeds, budget, rows, retry_failed, deadline):
+    def __init__(self, tasks, methods, seeds, budget, rows, retry_failed, deadline,
+                 redo=frozenset()):
         self.tasks, self.methods, self.seeds, self.budget = tasks, methods, seeds, budget
         self.deadline = deadline
         self.history = {key(r): errors_of(r) for r in rows
                         if r["status"] == "failed" and retry_failed}
-        self.done = {key(r) for r in rows} - set(self.history)
+        # ``redo``: runs whose row is there but no longer counts (stale), run again
+        self.done = {key(r) for r in rows} - set(self.history) - set(redo)
         self.finished: Counter = Counter()
         in_grid = Counter(t for t, m, s, b in self.done
                           if t in tasks and m in methods and s < seeds and b == budget)

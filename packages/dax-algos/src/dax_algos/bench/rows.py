@@ -4,7 +4,9 @@ own incomplete last line (:mod:`.csvlog`).
 
 The file is a log: a run that failed and was run again on resume keeps its ``failed`` row,
 and the new row lists the earlier errors in ``previous_errors`` (a JSON list of strings);
-:func:`latest` gives the row that counts for each (task, method, seed, budget).
+a stale run measured again (``--rerun-stale``) keeps its old row beside the new one, whose
+task fingerprint or config digest differs (:func:`remeasured`); :func:`latest` gives the
+row that counts for each (task, method, seed, budget).
 """
 
 from __future__ import annotations
@@ -72,6 +74,16 @@ def latest(rows: Iterable[Mapping]) -> list:
         last.pop(key(r), None)
         last[key(r)] = r
     return list(last.values())
+
+
+def remeasured(before: Mapping, after: Mapping) -> bool:
+    """``after`` is the same run as ``before`` measured again on other dax-tasks /
+    dax-physics code, task spec or method config (``dax-bench run --rerun-stale``): both
+    record their provenance and their task fingerprints or config digests differ."""
+    fields = ("task_fingerprint", "config_digest")
+    if not all(before.get(f) and after.get(f) for f in fields):
+        return False
+    return any(before[f] != after[f] for f in fields)
 
 
 def errors_of(row: Mapping) -> list:
@@ -178,10 +190,12 @@ def _parse(path: Path, text: str, header) -> list[dict]:
             k = key(row)
             if k in seen:
                 first_line, first = seen[k]
-                if first["status"] != "failed" or not row["previous_errors"]:
+                retry = first["status"] == "failed" and row["previous_errors"]
+                if not (retry or remeasured(first, row)):
                     raise ValueError(f"{where}: a second row for {k[0]} / {k[1]} / seed "
-                                     f"{k[2]} / {k[3]} (line {first_line}), not the retry "
-                                     f"of a failed run; remove one of them")
+                                     f"{k[2]} / {k[3]} (line {first_line}), neither the "
+                                     f"retry of a failed run nor a run measured again on "
+                                     f"other code or config; remove one of them")
             seen[k] = (line, row)
             rows.append(row)
     except csv.Error as err:

@@ -5,6 +5,7 @@ The ``dax-bench`` command::
     dax-bench run [--preset demo|cloth|paper] [--tasks T1,T2|all] [--methods M1,M2|all]
                   [--seeds K] [--quick | --budget quick|full] [--out DIR]
                   [--max-minutes N] [--no-retry-failed] [--include-stale]
+                  [--rerun-stale]
     dax-bench report --out DIR [--budget quick|full] [--include-stale] [--markdown]
     dax-bench list
 
@@ -92,6 +93,9 @@ def _parser() -> argparse.ArgumentParser:
                           "again; the new row keeps the old errors in previous_errors)")
     run.add_argument("--include-stale", action="store_true",
                      help="count stale rows in the reports' tables and means (marked)")
+    run.add_argument("--rerun-stale", action="store_true",
+                     help="run again the runs whose rows are stale (measured on other code, "
+                          "task spec or method config than today's); the new rows count")
     run.add_argument("--demos", default=None, metavar="DIR",
                      help="where the imitation methods' demonstration sets are recorded or "
                           "reused (default: $DAX_CACHE_DIR/demos, ~/.cache/dax/demos)")
@@ -169,7 +173,7 @@ def main(argv=None) -> int:
                              ray_address=args.ray_address, ray_cpus=args.ray_cpus,
                              retry_failed=not args.no_retry_failed,
                              max_minutes=args.max_minutes, include_stale=args.include_stale,
-                             lock_wait=args.lock_timeout)
+                             lock_wait=args.lock_timeout, rerun_stale=args.rerun_stale)
     except (ValueError, OSError) as err:  # FileLockedError is an OSError
         msg = " ".join(str(err).split()) or type(err).__name__
         print(f"dax-bench: error: {msg}", file=sys.stderr)
