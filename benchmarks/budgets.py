@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.findings import _grid_rows, _stats
+from benchmarks.findings import _grid_rows, _stats, run_curves
 
 #: Fewer scored updates than this and a curve is not split in fifths.
 MIN_UPDATES = 10
@@ -60,31 +60,20 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
     from dax_algos.method import LearnerMethod
 
     rows, budget, note = _grid_rows(path, budget, include_stale)
-    full = Path(path)
-    if not full.is_dir():
-        from benchmarks._report import ROOT
-        full = ROOT / path
     stats = _stats(rows)
     ok = [r for r in rows if r["status"] == "ok"]
     learners = {m for m in {r["method"] for r in ok}
                 if m in registry.names() and isinstance(registry.get(m), LearnerMethod)}
+    curves = run_curves(path, [r for r in ok if r["method"] in learners])
     out = []
     for task in sorted({r["task"] for r in ok}):
-        runs = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in ok
-                if r["task"] == task and r["method"] in learners}
-        if not runs:
-            continue
-        lp = learning.learning_path(full, task)
-        curves = learning.read_curves(lp, keep=runs) if lp.exists() else []
-        for method in sorted({m for _, m, _, _ in runs}):
+        curve_file = learning.learning_path(".", task).name
+        for method in sorted({r["method"] for r in ok
+                              if r["task"] == task and r["method"] in learners}):
             mine = [r for r in ok if r["task"] == task and r["method"] == method]
-            by_seed: dict = {}
-            for c in curves:
-                if c["method"] == method:
-                    by_seed.setdefault(c["seed"], []).append(c)
+            by_seed = curves.get((task, method), {})
             deltas, steps, updates, walls = [], [], [], []
             for rs in by_seed.values():
-                rs = sorted(rs, key=lambda c: c["update"])
                 deltas.append(_fifths_delta([c["score"] for c in rs]))
                 steps.append(rs[-1]["env_steps"])
                 updates.append(len(rs))
@@ -111,7 +100,7 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
                             updates=max(updates, default=0),
                             wall_s=float(np.mean(walls)) if walls else math.nan,
                             delta=d_mean, delta_se=d_se, eval_se=eval_se, n=n,
-                            verdict=verdict, curve=lp.name if by_seed else None))
+                            verdict=verdict, curve=curve_file if by_seed else None))
     return out, budget, note
 
 

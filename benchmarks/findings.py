@@ -81,16 +81,24 @@ def stale_note(reasons: list[str], n_rows: int, included: bool) -> str:
             + "; ".join(f"{text}: {n}" for text, n in counts.items()) + ")")
 
 
+def _grid_path(path) -> Path:
+    """``path`` as given when it exists or is absolute, else relative to the repository
+    root (how the README blocks name their grids)."""
+    from benchmarks._report import ROOT
+
+    path = Path(path)
+    return path if path.is_absolute() or path.exists() else ROOT / path
+
+
 def _grid_rows(path, budget=None, include_stale=False):
     """``(rows that count, budget, stale note)`` of a grid directory or results CSV: the
     latest row per run, of ``budget`` (default: the last row's), stale rows left out
     unless ``include_stale``; the note (:func:`stale_note`) says which."""
-    from benchmarks._report import ROOT
     from dax_algos.bench import provenance, rundir, summary
     from dax_algos.bench.rows import latest, read_rows
 
     path = Path(path)
-    full = path if path.is_absolute() or path.exists() else ROOT / path
+    full = _grid_path(path)
     csv_path = full if full.suffix == ".csv" else full / "results.csv"
     if not csv_path.is_file():
         raise ValueError(f"{path}: not a grid directory or results file (no {csv_path.name})")
@@ -170,14 +178,13 @@ def render_findings(path, budget=None, include_stale=False) -> str:
 EQUAL_TIME = ("whip_rope", ("apg", "shac"), "ppo")
 
 
-def training_seconds(path, rows) -> dict:
-    """``{(task, method): mean training wall time per seed [s]}`` of the learners with a
-    learning curve in the grid at ``path`` (the curve's last cumulative ``wall_s``: training
-    only, evaluation excluded), for the runs in ``rows``."""
-    from benchmarks._report import ROOT
+def run_curves(path, rows) -> dict:
+    """``{(task, method): {seed: [curve rows in update order]}}``: the learning curves in
+    the grid at ``path`` (``learning_<task>.csv``, :mod:`dax_algos.bench.learning`) of the
+    ok runs in ``rows``; each task's file read once."""
     from dax_algos.bench import learning
 
-    full = Path(path) if Path(path).is_dir() else ROOT / path
+    full = _grid_path(path)
     out: dict = {}
     for task in sorted({r["task"] for r in rows}):
         runs = {(r["task"], r["method"], int(r["seed"]), r["budget"]) for r in rows
@@ -185,15 +192,20 @@ def training_seconds(path, rows) -> dict:
         lp = learning.learning_path(full, task)
         if not lp.exists():
             continue
-        last: dict = {}
         for c in learning.read_curves(lp, keep=runs):
-            k = (c["method"], c["seed"])
-            if c["update"] >= last.get(k, (-1, 0.0))[0]:
-                last[k] = (c["update"], c["wall_s"])
-        for method in {m for m, _ in last}:
-            walls = [w for (m, _), (_, w) in last.items() if m == method]
-            out[task, method] = float(np.mean(walls))
+            out.setdefault((task, c["method"]), {}).setdefault(c["seed"], []).append(c)
+    for seeds in out.values():
+        for curve in seeds.values():
+            curve.sort(key=lambda c: c["update"])
     return out
+
+
+def training_seconds(path, rows) -> dict:
+    """``{(task, method): mean training wall time per seed [s]}`` of the learners with a
+    learning curve in the grid at ``path`` (the curve's last cumulative ``wall_s``: training
+    only, evaluation excluded), for the runs in ``rows``."""
+    return {k: float(np.mean([curve[-1]["wall_s"] for curve in seeds.values()]))
+            for k, seeds in run_curves(path, rows).items()}
 
 
 def equal_time_text(path, rows) -> str:

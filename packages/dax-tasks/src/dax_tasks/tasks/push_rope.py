@@ -318,8 +318,9 @@ class PushRope(MPMEnv):
 
     def aligned_goal(self, x, goal):
         """``goal`` (N, 3) slid along the goal line (x) by the mean x offset of the rope
-        ``x`` (N, 3) from it, the least-squares shift along the line."""
-        return goal.at[:, 0].add(jnp.mean(x[:, 0] - goal[:, 0]))
+        ``x`` (N, 3) from it, the least-squares shift along the line (:meth:`goal_pose`)."""
+        _, shift = self.goal_pose(x, goal)
+        return goal.at[:, 0].add(shift[0])
 
     def distance(self, physics, goal):
         """``D`` [m]: the index-correspondence mean L2 between the rope's particles and
