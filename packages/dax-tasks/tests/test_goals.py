@@ -68,6 +68,17 @@ def test_fingerprint_covers_every_spec_field_and_the_code(monkeypatch):
     assert base.fingerprint() != before, "the fingerprint ignores the source code"
 
 
+def test_the_code_digest_reads_every_module_of_both_packages():
+    """The tasks' own modules count (a changed fold or settling time changes results
+    without changing the spec), not only dax_tasks.core."""
+    from dax_tasks.core.spec import code_files
+
+    names = {src.relative_to(package.parent).as_posix() for package, src in code_files()}
+    for module in ("dax_tasks/tasks/cloth.py", "dax_tasks/tasks/_cloth.py",
+                   "dax_tasks/core/spec.py", "dax_physics/cloth/sim.py"):
+        assert module in names, module
+
+
 def test_the_code_digest_follows_the_program_not_its_comments_or_docstrings():
     from dax_tasks.core.spec import _program_text
 

@@ -243,11 +243,19 @@ def code_digest() -> str:
     changed fold or settling time changes the result without changing the spec), while an
     edit of comments, docstrings or layout changes nothing."""
     h = hashlib.sha256()
-    for package in (Path(__file__).parent, Path(dax_physics.__file__).parent):
-        for src in sorted(package.rglob("*.py")):
-            h.update(src.relative_to(package.parent).as_posix().encode())
-            h.update(_program_text(src.read_bytes()).encode())
+    for package, src in code_files():
+        h.update(src.relative_to(package.parent).as_posix().encode())
+        h.update(_program_text(src.read_bytes()).encode())
     return h.hexdigest()
+
+
+def code_files() -> list:
+    """``[(package dir, source file)]``: every ``.py`` file of the dax_tasks and
+    dax_physics packages (the tasks' modules included), in a fixed order; what
+    :func:`code_digest` digests."""
+    packages = (Path(__file__).resolve().parent.parent,  # dax_tasks, not only its core
+                Path(dax_physics.__file__).resolve().parent)
+    return [(package, src) for package in packages for src in sorted(package.rglob("*.py"))]
 
 
 def _program_text(source: bytes) -> str:
