@@ -11,7 +11,8 @@ changes a field in every variant, the baseline included). Per (variant, seed) on
 * ``untrained``: the same rollouts of the policy before training (the network's
   initial parameters from the seed's key, the normaliser's initial statistics);
 * ``curve``: per training update, the training episodes' mean final-step r_gt (the first
-  point is the untrained policy's where an update is one whole episode);
+  point is the untrained policy's where an update is one whole episode) and
+  ``return_curve`` their mean return (the training reward the method maximises);
   ``grad_norm``: per update, the raw (unclipped) global norm of the policy gradient;
 * ``wall_s`` (training and evaluation of the seed, compiled), ``compile_s``,
   ``env_steps`` and ``env_steps_per_s`` (training env steps over ``wall_s``), the 1-minute
@@ -80,7 +81,13 @@ VARIANTS = {
             # the score is the 50th or 100th step's r_gt on the MPM tasks)
             "whole_episodes_d99": {"num_envs": 8, "unroll_length": 12,
                                    "total_env_steps": 1920, "discount": 0.99},
-            "lr_high": {"learning_rate": 3e-3}},
+            "lr_high": {"learning_rate": 3e-3},
+            # the policy mean drifting under noisy advantages (a smaller step, a narrower
+            # Gaussian), on whole episodes so the curve is read
+            "whole_episodes_lr_low": {"num_envs": 8, "unroll_length": 12,
+                                      "total_env_steps": 1920, "learning_rate": 1e-4},
+            "whole_episodes_std_low": {"num_envs": 8, "unroll_length": 12,
+                                       "total_env_steps": 1920, "init_log_std": -1.5}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
@@ -164,6 +171,7 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
                    score=float(np.mean(rollouts)), rollouts=rollouts.tolist(),
                    untrained=float(np.mean(untrained)), untrained_rollouts=untrained.tolist(),
                    curve=np.asarray(m.score, np.float64).tolist(),
+                   return_curve=np.asarray(m.episode_return, np.float64).tolist(),
                    grad_norm=np.asarray(m.grad_norm, np.float64).tolist(),
                    nonfinite_grads=int(np.sum(m.nonfinite)),
                    wall_s=round(wall, 2), compile_s=round(compile_s, 2), env_steps=steps,
