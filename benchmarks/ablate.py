@@ -67,7 +67,9 @@ VARIANTS = {
     "apg": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "object_frame": {"frame": "object"},
             "no_clip": {"max_grad_norm": None}, "lr_low": {"learning_rate": 1e-4},
-            "final_reward": {"objective": "final"}, "no_aux": {"aux_weight": 0.0}},
+            "final_reward": {"objective": "final"}, "no_aux": {"aux_weight": 0.0},
+            # a curve that peaks and falls (the budget table's verdict on Fold-Cloth-1)
+            "lr_linear": {"lr_schedule": "linear"}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
              "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0}},

@@ -116,6 +116,7 @@ def test_apg_objective_is_the_summed_reward_or_the_final_r_gt(env, objective):
     (shac.SHACConfig, dict(target_alpha=-0.1), "target_alpha"),
     (shac.SHACConfig, dict(actor_learning_rate=float("nan")), "actor_learning_rate"),
     (ppo.PPOConfig, dict(frame="goal"), "unknown frame"),
+    (apg.APGConfig, dict(lr_schedule="cosine"), "lr_schedule"),
 ])
 def test_bad_config_is_refused(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -155,3 +156,18 @@ def test_a_policy_in_the_object_frame_records_the_actions_the_task_stepped(name)
     in_frame = m.config("quick", "fold_cloth1", **tiny)
     plain = jax.jit(learner.learner_episode(m.learner, env, in_frame))(key, env.default_params)
     assert not np.allclose(np.asarray(plain.episode.actions), np.asarray(out.episode.actions))
+
+
+def test_a_linear_learning_rate_schedule_decays_the_step_to_zero():
+    from dax_algos.optim import make_optimiser
+
+    opt = make_optimiser(0.5, None, optimiser="sgd", lr_schedule="linear", steps=4)
+    x, g = jnp.zeros(2), jnp.ones(2)
+    state, steps = opt.init(x), []
+    for _ in range(5):
+        u, state = opt.update(g, state, x)
+        steps.append(float(-u[0]))
+    np.testing.assert_allclose(steps, [0.5, 0.375, 0.25, 0.125, 0.0], atol=1e-7)
+    with pytest.raises(ValueError, match="optimiser steps"):
+        make_optimiser(0.5, None, lr_schedule="linear")
+

@@ -8,19 +8,38 @@ import jax.numpy as jnp
 import optax
 
 OPTIMISERS = ("adam", "sgd")
+#: Learning-rate schedules: ``constant``, or ``linear`` from the learning rate to 0 over
+#: the run's optimiser steps (as SHAC's original code decays its rates).
+LR_SCHEDULES = ("constant", "linear")
+
+
+def check_lr_schedule(schedule: str) -> None:
+    """Raise a ValueError naming the valid schedules when ``schedule`` is not one."""
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"unknown lr_schedule {schedule!r}; valid: "
+                         f"{', '.join(LR_SCHEDULES)}")
 
 
 def make_optimiser(learning_rate: float, max_grad_norm: float | None,
-                   zero_nans: bool = False, optimiser: str = "adam"
+                   zero_nans: bool = False, optimiser: str = "adam",
+                   lr_schedule: str = "constant", steps: int | None = None
                    ) -> optax.GradientTransformation:
     """``[zero_nans] -> [clip_by_global_norm(max_grad_norm)] -> adam | sgd``, minimising;
-    ``max_grad_norm=None`` clips nothing."""
+    ``max_grad_norm=None`` clips nothing. ``lr_schedule="linear"`` decays the rate from
+    ``learning_rate`` to 0 over ``steps`` optimiser steps (required then)."""
     if optimiser not in OPTIMISERS:
         raise ValueError(f"unknown optimiser {optimiser!r}; valid: {', '.join(OPTIMISERS)}")
+    check_lr_schedule(lr_schedule)
+    rate = learning_rate
+    if lr_schedule == "linear":
+        if not steps or steps < 1:
+            raise ValueError(f"lr_schedule 'linear' needs the run's optimiser steps "
+                             f"(a positive int), got {steps!r}")
+        rate = optax.linear_schedule(learning_rate, 0.0, steps)
     parts = [optax.zero_nans()] if zero_nans else []
     if max_grad_norm is not None:
         parts.append(optax.clip_by_global_norm(max_grad_norm))
-    parts.append((optax.adam if optimiser == "adam" else optax.sgd)(learning_rate))
+    parts.append((optax.adam if optimiser == "adam" else optax.sgd)(rate))
     return optax.chain(*parts)
 
 

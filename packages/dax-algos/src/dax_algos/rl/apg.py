@@ -37,7 +37,7 @@ from ..mlp_policy import (
     feature_dim,
     policy_env,
 )
-from ..optim import guarded_update, make_optimiser
+from ..optim import check_lr_schedule, guarded_update, make_optimiser
 from . import losses
 from .training import training_params, update_metrics
 
@@ -53,7 +53,9 @@ class APGConfig:
     r_aux per step), ``"final"`` the final-step r_gt of each episode that ends in the
     window (the score itself; a window in which no episode ends has no gradient).
     frame: ``"table"`` (the task's observation and actions) or ``"object"`` (a macro
-    task's in the object's own frame, :class:`dax_tasks.ObjectFrame`)."""
+    task's in the object's own frame, :class:`dax_tasks.ObjectFrame`); lr_schedule:
+    ``"constant"`` or ``"linear"`` (to 0 over the run's updates, :data:`dax_algos.optim.
+    LR_SCHEDULES`)."""
 
     total_env_steps: int = 20_000
     num_envs: int = 4
@@ -69,10 +71,12 @@ class APGConfig:
     remat: bool = False
     aux_weight: float = 1.0
     objective: str = "sum"
+    lr_schedule: str = "constant"
     n_eval: int = 20
 
     def __post_init__(self):
         check_frame(self.frame)
+        check_lr_schedule(self.lr_schedule)
         check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
                      positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
@@ -139,7 +143,8 @@ def make_train(env, config: APGConfig):
     window = config.window_for(env)
     venv = dax_tasks.training_env(env, config.num_envs)
     pnet = network(env, config)
-    opt = make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans)
+    opt = make_optimiser(config.learning_rate, config.max_grad_norm, config.zero_nans,
+                         lr_schedule=config.lr_schedule, steps=config.updates_for(env))
     rollout = make_rollout(env, venv, pnet, config, window)
 
     def loss(policy_params, *args):
