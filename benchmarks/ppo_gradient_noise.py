@@ -1,0 +1,145 @@
+"""How much of PPO's first policy gradient is signal: the gradient of its clipped objective
+at the initial policy from independent batches of the task, compared (JSON).
+
+For one task and one (num_envs, unroll_length), ``--batches`` K independent batches are
+collected as PPO's first update collects them (:func:`dax_algos.rl.ppo.make_collect`:
+the initial policy and value networks of ``--seed``, the normaliser's initial statistics,
+auto-resetting envs from fresh starts per batch, GAE advantages), and for each the
+gradient g_k of the policy part of :func:`dax_algos.rl.losses.ppo_loss` over the whole
+batch (at the initial policy the ratio is 1, so it is the advantage-weighted score
+function). Reported, for the whole policy gradient and for its output bias alone (the
+direction the deterministic action's mean moves):
+
+* ``cosine_mean``: the mean cosine similarity of the K(K-1)/2 pairs (0 for pure noise, 1
+  for one direction);
+* ``snr``: the signal-to-noise ratio of one batch's gradient, ``sqrt(max(|ḡ|² - s²/K, 0) /
+  s²)`` with ``ḡ`` the mean over batches and ``s²`` the batches' total variance (an
+  unbiased estimate of ``|E g|² / E|g - E g|²`` under the square root);
+* ``samples_for_snr_1``: the batch size at which one batch's gradient would have SNR 1
+  (the noise falls as 1 / batch), ``samples_per_batch / snr²``.
+
+The value network is at its initialisation, as at PPO's first update, so the advantages
+are close to the discounted rewards-to-go normalised over the batch. Measurements only:
+nothing here is asserted in a test.
+
+    python -m benchmarks.ppo_gradient_noise whip_rope --num-envs 32 --unroll 3 \\
+        --batches 8 --out benchmarks/results/2026-11-28-ppo-gradient-noise.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import dax_tasks
+from dax_algos import registry
+from dax_algos.bench import execute, provenance
+from dax_algos.mlp_policy import ObsNorm, feature_dim
+from dax_algos.rl import gaussian, losses, ppo
+from dax_algos.rl.training import training_params
+
+
+def batch_gradients(task: str, num_envs: int, unroll: int, batches: int, seed: int,
+                    budget: str = "full"):
+    """``(config, grads)``: the PPO config used and the ``(batches, n_params)`` policy
+    gradients (flattened), plus ``(batches, act_dim)`` output-bias gradients."""
+    env = dax_tasks.make(task)
+    config = registry.get("ppo").config(budget, task, num_envs=num_envs,
+                                        unroll_length=unroll, minibatches=1)
+    penv = ppo.policy_env(env, config)
+    venv = dax_tasks.training_env(penv, num_envs)
+    pnet, vnet = ppo.policy_network(penv, config), ppo.value_network(penv, config)
+    collect = ppo.make_collect(penv, venv, pnet, vnet, config)
+    params = training_params(env.default_params, config.aux_weight)
+    k_pi, k_v = jax.random.split(jax.random.PRNGKey(seed))
+    net = {"policy": pnet.init(k_pi), "value": vnet.init(k_v)}
+    norm = ObsNorm.create(feature_dim(penv))
+
+    def loss(policy, data):
+        inputs, u, old_logp, adv, target = data
+        mean, log_std = pnet.apply(policy, inputs)
+        return losses.ppo_loss(gaussian.log_prob(u, mean, log_std), old_logp, adv,
+                               jnp.zeros_like(target), target, gaussian.entropy(log_std),
+                               config.clip, 0.0, config.entropy_cost)
+
+    @jax.jit
+    def one(key):
+        k_env, k_act = jax.random.split(key)
+        obs, state = venv.reset(k_env, params)
+        _, _, data = collect(net, norm, obs, state, k_act, params)
+        g = jax.grad(loss)(net["policy"], data)
+        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
+        return flat, _output_bias(g)
+
+    keys = jax.random.split(jax.random.PRNGKey(1000 + seed), batches)
+    out = [jax.device_get(one(k)) for k in keys]
+    return config, np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
+
+
+def _output_bias(grads):
+    """The gradient of the mean network's last bias (``(act_dim,)``)."""
+    tree = jax.tree_util.tree_flatten_with_path(grads)[0]
+    biases = [(jax.tree_util.keystr(p), v) for p, v in tree if "bias" in jax.tree_util.keystr(p)]
+    return biases[-1][1]  # the layers in order: the last bias is the output layer's
+
+
+def agreement(g: np.ndarray) -> dict:
+    """``cosine_mean`` and ``snr`` (module docstring) of ``(K, n)`` gradients."""
+    g = np.asarray(g, np.float64)
+    k = g.shape[0]
+    unit = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-30)
+    cos = unit @ unit.T
+    cosine_mean = float((np.sum(cos) - k) / (k * (k - 1)))
+    mean = g.mean(0)
+    s2 = float(np.sum((g - mean) ** 2) / (k - 1))
+    signal2 = max(float(np.sum(mean**2)) - s2 / k, 0.0)
+    return {"cosine_mean": round(cosine_mean, 4),
+            "snr": round(float(np.sqrt(signal2 / s2)), 4) if s2 > 0 else None}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("task", choices=sorted(dax_tasks.TASKS))
+    p.add_argument("--num-envs", type=int, default=32)
+    p.add_argument("--unroll", type=int, default=3)
+    p.add_argument("--batches", type=int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="JSON lines file (appended)")
+    args = p.parse_args(argv)
+    if args.batches < 2:
+        p.error("--batches must be at least 2")
+    execute.use_default_compilation_cache()
+    load = round(os.getloadavg()[0], 2)
+    t0 = time.perf_counter()
+    config, g, gb = batch_gradients(args.task, args.num_envs, args.unroll, args.batches,
+                                    args.seed)
+    samples = args.num_envs * args.unroll
+    rec = {"task": args.task, "method": "ppo", "num_envs": args.num_envs,
+           "unroll_length": args.unroll, "samples_per_batch": samples,
+           "batches": args.batches, "seed": args.seed, "load_1min": load,
+           "wall_s": round(time.perf_counter() - t0, 1),
+           "provenance": provenance.of_run(dax_tasks.make(args.task), config)}
+    for name, arr in (("policy", g), ("output_bias", gb)):
+        a = agreement(arr)
+        a["samples_for_snr_1"] = (round(samples / a["snr"] ** 2) if a["snr"] else None)
+        a["grad_norm_median"] = float(np.median(np.linalg.norm(arr, axis=1)))
+        rec[name] = a
+    rec["output_bias_mean"] = np.round(gb.mean(0), 6).tolist()
+    rec["output_bias_sd"] = np.round(gb.std(0, ddof=1), 6).tolist()
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("a") as f:
+        f.write(json.dumps(rec) + "\n")
+    print(json.dumps({k: rec[k] for k in ("task", "samples_per_batch", "policy",
+                                          "output_bias")}))
+
+
+if __name__ == "__main__":
+    main()
