@@ -25,17 +25,23 @@ from .rl.shac import SHACConfig
 _CEM_QUICK = dict(population=16, elites=4, iterations=2, horizon=1)
 _CEM_QUICK_HEAVY = dict(population=6, elites=2, iterations=1, horizon=1)
 _CEM_FULL = dict(population=64, elites=8, iterations=5, horizon=3)
+# on the MLS-MPM tasks the full CEM costs H * 961 env steps per episode (44-52 min per
+# episode on the pour tasks at this machine's batch-64 throughput): a tenth of it
+_CEM_FULL_HEAVY = dict(population=16, elites=4, iterations=3, horizon=2)
 
 #: Budgets of the planners: CEM's samples and iterations, diff-MPC's gradient steps.
 PLANNING_BUDGETS = {
-    "cem_mpc": {"quick": _CEM_QUICK, "quick_heavy": _CEM_QUICK_HEAVY, "full": _CEM_FULL},
+    "cem_mpc": {"quick": _CEM_QUICK, "quick_heavy": _CEM_QUICK_HEAVY, "full": _CEM_FULL,
+                "full_heavy": _CEM_FULL_HEAVY},
     "diff_mpc": {"quick": dict(steps=5, horizon=1, learning_rate=0.1),
                  "quick_heavy": dict(steps=1, horizon=1, learning_rate=0.1),
-                 "full": dict(steps=50, horizon=3, learning_rate=0.05)},
+                 "full": dict(steps=50, horizon=3, learning_rate=0.05),
+                 "full_heavy": dict(steps=10, horizon=2, learning_rate=0.05)},
     "diff_cem_mpc": {
         "quick": dict(cem=_CEM_QUICK, diff=dict(steps=3, learning_rate=0.05)),
         "quick_heavy": dict(cem=_CEM_QUICK_HEAVY, diff=dict(steps=1, learning_rate=0.05)),
-        "full": dict(cem=_CEM_FULL, diff=dict(steps=10, learning_rate=0.02))},
+        "full": dict(cem=_CEM_FULL, diff=dict(steps=10, learning_rate=0.02)),
+        "full_heavy": dict(cem=_CEM_FULL_HEAVY, diff=dict(steps=2, learning_rate=0.02))},
 }
 
 #: Training budgets of the RL methods in environment steps (with their batch shapes). The
