@@ -89,7 +89,11 @@ VARIANTS = {
             "whole_episodes_lr_low": {"num_envs": 8, "unroll_length": 12,
                                       "total_env_steps": 1920, "learning_rate": 1e-4},
             "whole_episodes_std_low": {"num_envs": 8, "unroll_length": 12,
-                                       "total_env_steps": 1920, "init_log_std": -1.5}},
+                                       "total_env_steps": 1920, "init_log_std": -1.5},
+            # a batch whose gradient has a direction: on Whip-Rope one 96-sample batch's
+            # gradient is noise (benchmarks.ppo_gradient_noise: SNR 0), 8 whole episodes
+            # SNR 0.4, so about 2,500 samples for SNR 1: 64 whole episodes per update
+            "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
