@@ -1,14 +1,20 @@
-"""How much of PPO's first policy gradient is signal: the gradient of its clipped objective
-at the initial policy from independent batches of the task, compared (JSON).
+"""How much of a learner's first policy gradient is signal: the gradient at the initial
+policy from independent batches of the task, compared (JSON).
 
-For one task and one (num_envs, unroll_length), ``--batches`` K independent batches are
-collected as PPO's first update collects them (:func:`dax_algos.rl.ppo.make_collect`:
-the initial policy and value networks of ``--seed``, the normaliser's initial statistics,
-auto-resetting envs from fresh starts per batch, GAE advantages), and for each the
-gradient g_k of the policy part of :func:`dax_algos.rl.losses.ppo_loss` over the whole
-batch (at the initial policy the ratio is 1, so it is the advantage-weighted score
-function). Reported, for the whole policy gradient and for its output bias alone (the
-direction the deterministic action's mean moves):
+For one task, one method and one batch shape, ``--batches`` K independent batches are drawn
+(fresh starts per batch; the initial networks of ``--seed``; the normaliser's initial
+statistics) and for each the policy gradient g_k of the method's first update:
+
+* ``ppo`` (``--num-envs`` x ``--unroll`` steps): collected as PPO's first update collects
+  them (:func:`dax_algos.rl.ppo.make_collect`: auto-resetting envs, GAE advantages), the
+  gradient of the policy part of :func:`dax_algos.rl.losses.ppo_loss` over the whole batch
+  (at the initial policy the ratio is 1: the advantage-weighted score function);
+* ``apg`` (``--num-envs`` episodes, or windows of ``--unroll`` steps): the gradient of
+  APG's objective through the simulator (:func:`dax_algos.rl.apg.make_rollout`), where
+  the batches differ only in their starts.
+
+Reported, for the whole policy gradient and for its output bias alone (the direction the
+deterministic action's mean moves):
 
 * ``cosine_mean``: the mean cosine similarity of the K(K-1)/2 pairs (0 for pure noise, 1
   for one direction);
@@ -18,12 +24,14 @@ direction the deterministic action's mean moves):
 * ``samples_for_snr_1``: the batch size at which one batch's gradient would have SNR 1
   (the noise falls as 1 / batch), ``samples_per_batch / snr²``.
 
-The value network is at its initialisation, as at PPO's first update, so the advantages
+PPO's value network is at its initialisation, as at its first update, so the advantages
 are close to the discounted rewards-to-go normalised over the batch. Measurements only:
 nothing here is asserted in a test.
 
-    python -m benchmarks.ppo_gradient_noise whip_rope --num-envs 32 --unroll 3 \\
-        --batches 8 --out benchmarks/results/2026-11-28-ppo-gradient-noise.jsonl
+    python -m benchmarks.gradient_noise whip_rope --num-envs 32 --unroll 3 \\
+        --batches 8 --out benchmarks/results/2026-11-28-gradient-noise.jsonl
+    python -m benchmarks.gradient_noise fold_cloth1 --method apg --num-envs 4 \\
+        --batches 8 --out benchmarks/results/2026-11-28-gradient-noise.jsonl
 """
 
 from __future__ import annotations
@@ -42,14 +50,17 @@ import dax_tasks
 from dax_algos import registry
 from dax_algos.bench import execute, provenance
 from dax_algos.mlp_policy import ObsNorm, feature_dim
-from dax_algos.rl import gaussian, losses, ppo
+from dax_algos.rl import apg, gaussian, losses, ppo
 from dax_algos.rl.training import training_params
 
 
-def batch_gradients(task: str, num_envs: int, unroll: int, batches: int, seed: int,
-                    budget: str = "full"):
-    """``(config, grads)``: the PPO config used and the ``(batches, n_params)`` policy
-    gradients (flattened), plus ``(batches, act_dim)`` output-bias gradients."""
+def batch_gradients(method: str, task: str, num_envs: int, unroll: int | None,
+                    batches: int, seed: int, budget: str = "full"):
+    """``(config, grads, bias_grads)``: the method's config used, the ``(batches,
+    n_params)`` policy gradients (flattened) and the ``(batches, act_dim)`` output-bias
+    gradients (for ``apg`` ``unroll=None`` is the episode)."""
+    if method == "apg":
+        return _apg_gradients(task, num_envs, unroll, batches, seed, budget)
     env = dax_tasks.make(task)
     config = registry.get("ppo").config(budget, task, num_envs=num_envs,
                                         unroll_length=unroll, minibatches=1)
@@ -78,9 +89,35 @@ def batch_gradients(task: str, num_envs: int, unroll: int, batches: int, seed: i
         flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
         return flat, _output_bias(g)
 
+    return config, *_per_batch(one, batches, seed)
+
+
+def _apg_gradients(task, num_envs, window, batches, seed, budget):
+    env = dax_tasks.make(task)
+    config = registry.get("apg").config(budget, task, num_envs=num_envs, window=window)
+    penv = apg.policy_env(env, config)
+    venv = dax_tasks.training_env(penv, num_envs)
+    pnet = apg.network(penv, config)
+    rollout = apg.make_rollout(penv, venv, pnet, config, config.window_for(penv))
+    params = training_params(env.default_params, config.aux_weight)
+    policy = pnet.init(jax.random.PRNGKey(seed))
+    norm = ObsNorm.create(feature_dim(penv))
+
+    @jax.jit
+    def one(key):
+        k_env, k_run = jax.random.split(key)
+        obs, state = venv.reset(k_env, params)
+        g = jax.grad(lambda p: -rollout(p, norm, obs, state, k_run, params)[0])(policy)
+        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
+        return flat, _output_bias(g)
+
+    return config, *_per_batch(one, batches, seed)
+
+
+def _per_batch(one, batches: int, seed: int):
     keys = jax.random.split(jax.random.PRNGKey(1000 + seed), batches)
     out = [jax.device_get(one(k)) for k in keys]
-    return config, np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
+    return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
 
 
 def _output_bias(grads):
@@ -107,8 +144,10 @@ def agreement(g: np.ndarray) -> dict:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("task", choices=sorted(dax_tasks.TASKS))
+    p.add_argument("--method", choices=("ppo", "apg"), default="ppo")
     p.add_argument("--num-envs", type=int, default=32)
-    p.add_argument("--unroll", type=int, default=3)
+    p.add_argument("--unroll", type=int, default=None,
+                   help="steps per env in a batch (default: 3 for ppo, the episode for apg)")
     p.add_argument("--batches", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="JSON lines file (appended)")
@@ -118,11 +157,13 @@ def main(argv=None):
     execute.use_default_compilation_cache()
     load = round(os.getloadavg()[0], 2)
     t0 = time.perf_counter()
-    config, g, gb = batch_gradients(args.task, args.num_envs, args.unroll, args.batches,
-                                    args.seed)
-    samples = args.num_envs * args.unroll
-    rec = {"task": args.task, "method": "ppo", "num_envs": args.num_envs,
-           "unroll_length": args.unroll, "samples_per_batch": samples,
+    unroll = args.unroll if args.unroll or args.method == "apg" else 3
+    config, g, gb = batch_gradients(args.method, args.task, args.num_envs, unroll,
+                                    args.batches, args.seed)
+    steps = unroll or dax_tasks.make(args.task).horizon
+    samples = args.num_envs * steps
+    rec = {"task": args.task, "method": args.method, "num_envs": args.num_envs,
+           "unroll_length": steps, "samples_per_batch": samples,
            "batches": args.batches, "seed": args.seed, "load_1min": load,
            "wall_s": round(time.perf_counter() - t0, 1),
            "provenance": provenance.of_run(dax_tasks.make(args.task), config)}
@@ -137,7 +178,7 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("a") as f:
         f.write(json.dumps(rec) + "\n")
-    print(json.dumps({k: rec[k] for k in ("task", "samples_per_batch", "policy",
+    print(json.dumps({k: rec[k] for k in ("task", "method", "samples_per_batch", "policy",
                                           "output_bias")}))
 
 
