@@ -132,6 +132,34 @@ def test_list_and_all_pairs_give_the_contact_law():
         assert err < 1e-5, f"{search}: expected the brute-force forces, rel. error {err}"
 
 
+
+def test_force_tier_holds_every_stored_pair():
+    """Whatever the stored count, the force's slot tier holds all stored pairs: at each tier
+    size and one past it, the listed force equals the force of exactly the stored pairs.
+    The tiers are multiples of 8, at most 2 apart, and end at the capacity."""
+    P, V = 1024, 64
+    sizes = sc._tier_sizes(P)
+    assert list(sizes) == sorted(set(sizes)) and sizes[-1] == P
+    assert all(s % 8 == 0 for s in sizes)
+    assert all(b <= 2 * a for a, b in zip(sizes[:-1], sizes[1:], strict=True))
+    rng = np.random.default_rng(5)
+    xt = jnp.asarray(rng.uniform(0.0, 0.5 * H, (3, V)), jnp.float32)  # all in contact
+    vt = jnp.asarray(rng.normal(0.0, 0.1, (3, V)), jnp.float32)
+    i, j = np.triu_indices(V, 1)
+    pairs = np.stack([i, j])[:, :P].astype(np.int32)
+    cfg = c.ClothConfig(thickness=H, self_stiffness=0.5, self_damping=1e-3)
+    listed = jax.jit(lambda n, p: sc._list_forces(cfg, sc.NeighbourList(
+        pairs=p, count=n, x_ref=xt.T, overflow=jnp.zeros((), jnp.int32),
+        builds=jnp.ones((), jnp.int32)), xt, vt))
+    every_slot = jax.jit(lambda p: sc._listed_pairs_forces(cfg, p, xt, vt))
+    for n in sorted({1, *sizes, *(s + 1 for s in sizes[:-1])}):
+        stored = jnp.asarray(np.where(np.arange(P) < n, pairs, 0).astype(np.int32))
+        want = np.asarray(every_slot(stored))  # the (0, 0) slots exert no force
+        got = np.asarray(listed(jnp.int32(n), stored))
+        assert np.max(np.abs(want)) > 0
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.max(np.abs(want)),
+                                   err_msg=f"count {n}")
+
 def _folded(n=8, size=0.2):
     """A square cloth folded once along its diagonal, the folded half one h above."""
     cl = c.square_cloth(n, size=(size, size), stretch=20.0, damping=0.01)

@@ -85,13 +85,22 @@ def pair_capacity(cfg, n_vertices: int) -> int:
     return max(8, 8 * math.ceil(cfg.self_capacity * n_vertices / 8))
 
 
+#: Tiers of at least this many slots are spaced by sqrt(2), smaller ones by 2: where a
+#: slot tier is large its unused slots cost the most, and each tier is one more branch to
+#: compile (twice, with its gradient).
+_FINE_TIERS = 256
+
+
 def _tier_sizes(capacity: int) -> tuple:
     """Slot counts the force is evaluated over: the smallest tier holding all stored pairs
-    is used (P, P / 2, P / 4, ... down to 8, multiples of 8)."""
-    sizes, div = set(), 2
-    while capacity / div >= 8:
-        sizes.add(8 * math.ceil(capacity / (8 * div)))
-        div *= 2
+    is used (multiples of 8: P, P / 2, P / 4, ... down to 8, and between them P / sqrt(2),
+    P / (2 sqrt(2)), ... while those are at least ``_FINE_TIERS``)."""
+    sizes, k = set(), 1
+    while capacity / 2 ** (k / 2) >= 8:
+        size = 8 * math.ceil(capacity / (8 * 2 ** (k / 2)))
+        if k % 2 == 0 or size >= _FINE_TIERS:
+            sizes.add(size)
+        k += 1
     return tuple(sorted(s for s in sizes if s < capacity)) + (capacity,)
 
 
