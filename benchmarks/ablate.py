@@ -93,7 +93,10 @@ VARIANTS = {
             # a batch whose gradient has a direction: on Whip-Rope one 96-sample batch's
             # gradient is noise (benchmarks.ppo_gradient_noise: SNR 0), 8 whole episodes
             # SNR 0.4, so about 2,500 samples for SNR 1: 64 whole episodes per update
-            "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000}},
+            "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000},
+            # and a discount that sees the score's step (0.9 per step: a 10-step horizon)
+            "big_batch_d99": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000,
+                              "discount": 0.99}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
