@@ -141,6 +141,40 @@ def agreement(g: np.ndarray) -> dict:
             "snr": round(float(np.sqrt(signal2 / s2)), 4) if s2 > 0 else None}
 
 
+def render_table(path) -> str:
+    """The Markdown table of a file of :func:`main`'s JSON lines: per task, method and
+    batch, the signal-to-noise ratio of one batch's policy gradient and of its output
+    bias, their mean pairwise cosine and the samples one batch would need for SNR 1."""
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    out = ["| task | method | batch (envs × steps) | samples | SNR | cosine | samples for "
+           "SNR 1 | output bias SNR | output bias cosine |",
+           "|---|---|---|---|---|---|---|---|---|"]
+
+    def n(x):
+        return "—" if x is None else (f"{x:,}" if isinstance(x, int) else f"{x:.2f}")
+
+    for r in recs:
+        pol, bias = r["policy"], r["output_bias"]
+        need = ("noise only" if not pol["snr"] else n(pol["samples_for_snr_1"]))
+        out.append(f"| {r['task']} | {r['method']} | {r['num_envs']} × {r['unroll_length']} "
+                   f"| {r['samples_per_batch']} | {n(pol['snr'])} | {n(pol['cosine_mean'])} "
+                   f"| {need} | {n(bias['snr'])} | {n(bias['cosine_mean'])} |")
+    loads = [r["load_1min"] for r in recs if r.get("load_1min") is not None]
+    batches = sorted({r["batches"] for r in recs})
+    out += ["", f"{'/'.join(map(str, batches))} independent batches per row (fresh starts), "
+            "the initial networks of seed 0, the gradient of the method's first update "
+            "(PPO: its clipped objective at ratio 1 with GAE advantages from an "
+            "untrained critic; APG: its objective through the simulator). SNR: |mean "
+            "gradient| over one batch's noise (0: no direction above the noise); cosine: "
+            "mean over pairs of batches; samples for SNR 1: the batch whose noise variance, "
+            "falling as 1 / samples, would equal the squared signal. "
+            f"1-minute load {min(loads, default=0):.1f}-{max(loads, default=0):.1f}, 2 CPU "
+            f"cores; `{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("task", choices=sorted(dax_tasks.TASKS))

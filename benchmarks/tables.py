@@ -114,6 +114,10 @@ FILE_KINDS = {
     "ablation": ("benchmarks.ablate", "render_table",
                  "learner ablations: each variant against the baseline, paired by seed "
                  "(benchmarks.ablate JSONL files)", "+"),
+    "gradient_noise": ("benchmarks.gradient_noise", "render_table",
+                       "the signal-to-noise ratio of a learner's first policy gradient "
+                       "across independent batches (a benchmarks.gradient_noise JSONL "
+                       "file)", 1),
     "ild_weighting": ("benchmarks.ild_weighting", "render_table",
                       "ILD's score per state-distance weighting (a benchmarks.ild_weighting "
                       "JSONL file)", 1),
