@@ -6,7 +6,7 @@ import sys
 import pytest
 from algos_helpers import cheap_cloth_overrides, register_nan_planner
 
-from dax_algos import registry
+from dax_algos import method, registry
 from dax_algos.bench import execute, runner
 from dax_algos.bench.grid import resolve_methods, resolve_tasks, run_grid
 from dax_algos.bench.rows import COLUMNS, append_row, read_rows
@@ -147,3 +147,18 @@ def test_budgets_quick_smaller_than_full_and_heavier_tasks_smaller_still():
     assert nested.diff.steps == 7 and nested.cem.population == quick.population
     with pytest.raises(ValueError, match="unknown CEMConfig option"):
         cem.config("quick", TASK, populaton=3)
+    # the full planners on the MPM tasks are their own, smaller budget
+    assert cem.config("full", "whip_rope").population < full.population
+
+
+def test_a_budget_of_one_task_comes_before_the_heavy_and_the_general_one():
+    m = method.LearnerMethod(
+        name="probe", family="rl", config_cls=registry.get("ppo").config_cls,
+        learner=registry.get("ppo").learner,
+        budgets={"full": dict(num_envs=4), "full_heavy": dict(num_envs=8),
+                 "full@whip_rope": dict(num_envs=16)})
+    assert m.config("full", "fold_cloth1").num_envs == 4
+    assert m.config("full", "pour_water").num_envs == 8
+    assert m.config("full", "whip_rope").num_envs == 16
+    assert m.config("quick", "whip_rope").num_envs == m.config_cls().num_envs
+    assert m.config("full", "whip_rope", num_envs=32).num_envs == 32  # overrides still win

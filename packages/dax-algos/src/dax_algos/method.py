@@ -23,7 +23,8 @@ from .planning.planner import Planner, episode_env_steps, make_episode
 FAMILIES = ("reference", "planning", "rl", "il")
 #: The budgets every method has: ``quick`` (the benchmark's smoke run) and ``full`` (the
 #: budgets to report). A method's ``budgets`` may add ``quick_heavy`` / ``full_heavy``,
-#: used on :data:`HEAVY_TASKS` instead.
+#: used on :data:`HEAVY_TASKS` instead, and ``"full@TASK"`` (or ``"quick@TASK"``), used
+#: on that one task before either (a budget measured for it).
 BUDGETS = ("quick", "full")
 #: The tasks simulated with MLS-MPM, whose episodes cost more than a cloth task's: a
 #: method's ``*_heavy`` budget applies to them.
@@ -74,8 +75,9 @@ class LearnerRunnable(Runnable):
 class Method:
     """What every registered method has. name: its command-line name; family: one of
     :data:`FAMILIES`; config_cls: its frozen config dataclass; budgets: ``{"quick" |
-    "quick_heavy" | "full" | "full_heavy": config keyword arguments}``; uses_gradients:
-    whether it differentiates through the simulator."""
+    "quick_heavy" | "full" | "full_heavy" | "full@TASK" | "quick@TASK": config keyword
+    arguments}`` (see :data:`BUDGETS`); uses_gradients: whether it differentiates through
+    the simulator."""
 
     name: str
     family: str
@@ -94,8 +96,9 @@ class Method:
         dict of their own fields)."""
         if budget not in BUDGETS:
             raise ValueError(f"unknown budget {budget!r}; valid: {', '.join(BUDGETS)}")
-        heavy = f"{budget}_heavy"
-        key = heavy if task in HEAVY_TASKS and heavy in self.budgets else budget
+        heavy, own = f"{budget}_heavy", f"{budget}@{task}"
+        key = (own if own in self.budgets
+               else heavy if task in HEAVY_TASKS and heavy in self.budgets else budget)
         kwargs = dict(self.budgets.get(key, {}))
         kwargs.update(overrides)
         return _build_config(self.config_cls, kwargs)

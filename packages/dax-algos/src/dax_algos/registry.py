@@ -51,7 +51,11 @@ RL_BUDGETS = {
             "quick_heavy": dict(total_env_steps=48, num_envs=8, unroll_length=3, n_eval=2,
                                 minibatches=2),
             "full": dict(total_env_steps=2304, num_envs=64, unroll_length=3),
-            "full_heavy": dict(total_env_steps=960, num_envs=32, unroll_length=3)},
+            "full_heavy": dict(total_env_steps=960, num_envs=32, unroll_length=3),
+            # Whip-Rope: 32 x 3 steps never ends an episode and its gradient is noise
+            # (SNR 0); 64 whole episodes per update measured 0.38 against 0.06
+            # (benchmarks.ablate big_batch; benchmarks.gradient_noise)
+            "full@whip_rope": dict(total_env_steps=16000, num_envs=64, unroll_length=50)},
     "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
                                 learning_rate=1e-3, n_eval=2),
