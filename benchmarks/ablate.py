@@ -70,8 +70,7 @@ VARIANTS = {
             "final_reward": {"objective": "final"}, "no_aux": {"aux_weight": 0.0},
             # a curve that peaks and falls (the budget table's verdict on Fold-Cloth-1)
             "lr_linear": {"lr_schedule": "linear"},
-            # a batch whose gradient has a direction: on Fold-Cloth-1 4 episodes' gradient
-            # is noise (SNR 0), 32 episodes' SNR 0.32 (benchmarks.gradient_noise); the same
+            # a batch whose gradient has a direction (benchmarks.gradient_noise): the same
             # 40 updates with 8x the episodes
             "big_batch": {"num_envs": 32, "total_env_steps": 3840}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
@@ -94,9 +93,8 @@ VARIANTS = {
                                       "total_env_steps": 1920, "learning_rate": 1e-4},
             "whole_episodes_std_low": {"num_envs": 8, "unroll_length": 12,
                                        "total_env_steps": 1920, "init_log_std": -1.5},
-            # a batch whose gradient has a direction: on Whip-Rope one 96-sample batch's
-            # gradient is noise (benchmarks.ppo_gradient_noise: SNR 0), 8 whole episodes
-            # SNR 0.4, so about 2,500 samples for SNR 1: 64 whole episodes per update
+            # a batch whose gradient has a direction (benchmarks.gradient_noise): 64 whole
+            # episodes per update
             "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000},
             # and a discount that sees the score's step (0.9 per step: a 10-step horizon)
             "big_batch_d99": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000,

@@ -25,8 +25,8 @@ from .rl.shac import SHACConfig
 _CEM_QUICK = dict(population=16, elites=4, iterations=2, horizon=1)
 _CEM_QUICK_HEAVY = dict(population=6, elites=2, iterations=1, horizon=1)
 _CEM_FULL = dict(population=64, elites=8, iterations=5, horizon=3)
-# on the MLS-MPM tasks the full CEM costs H * 961 env steps per episode (44-52 min per
-# episode on the pour tasks at this machine's batch-64 throughput): a tenth of it
+# on the MLS-MPM tasks the full CEM's H * 961 env steps per episode do not fit a 2-core
+# machine (README, "Budgets (planners)"): a tenth of it
 _CEM_FULL_HEAVY = dict(population=16, elites=4, iterations=3, horizon=2)
 
 #: Budgets of the planners: CEM's samples and iterations, diff-MPC's gradient steps.
@@ -52,9 +52,9 @@ RL_BUDGETS = {
                                 minibatches=2),
             "full": dict(total_env_steps=2304, num_envs=64, unroll_length=3),
             "full_heavy": dict(total_env_steps=960, num_envs=32, unroll_length=3),
-            # Whip-Rope: 32 x 3 steps never ends an episode and its gradient is noise
-            # (SNR 0); 64 whole episodes per update measured 0.38 against 0.06
-            # (benchmarks.ablate big_batch; benchmarks.gradient_noise)
+            # Whip-Rope: 32 x 3 steps never end an episode and give a gradient with no
+            # direction; 64 whole episodes per update measured better (benchmarks.ablate
+            # big_batch, benchmarks.gradient_noise; README, "RL budgets")
             "full@whip_rope": dict(total_env_steps=16000, num_envs=64, unroll_length=50)},
     "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
