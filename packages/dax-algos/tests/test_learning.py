@@ -40,6 +40,17 @@ def test_interrupted_write_duplicates_and_keep(tmp_path):
     assert {r["seed"] for r in kept} == {2}
 
 
+def test_a_rerun_with_fewer_updates_replaces_the_whole_curve(tmp_path):
+    path = learning.learning_path(tmp_path, "t")
+    learning.append_curve(path, _curve("ppo", 0, n=6))
+    learning.append_curve(path, _curve("apg", 0, n=6))
+    learning.append_curve(path, _curve("ppo", 0, n=3, offset=1.0))  # re-run, other budget
+    ppo = [r for r in learning.read_curves(path) if r["method"] == "ppo"]
+    assert [r["update"] for r in ppo] == [0, 1, 2]  # none of the first run's updates 3-5
+    assert ppo[-1]["score"] == pytest.approx(1.2)
+    assert len([r for r in learning.read_curves(path) if r["method"] == "apg"]) == 6
+
+
 def test_wrong_header_is_refused_naming_the_file(tmp_path):
     path = tmp_path / "learning_t.csv"
     path.write_text("a,b\n1,2\n")
