@@ -192,11 +192,8 @@ def run_curves(path, rows) -> dict:
         lp = learning.learning_path(full, task)
         if not lp.exists():
             continue
-        for c in learning.read_curves(lp, keep=runs):
+        for c in learning.read_curves(lp, keep=runs):  # each run's in update order
             out.setdefault((task, c["method"]), {}).setdefault(c["seed"], []).append(c)
-    for seeds in out.values():
-        for curve in seeds.values():
-            curve.sort(key=lambda c: c["update"])
     return out
 
 

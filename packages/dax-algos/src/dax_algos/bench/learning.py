@@ -57,15 +57,15 @@ def append_curve(path, rows: list[dict]) -> None:
 
 
 def read_curves(path, keep: set | None = None) -> list[dict]:
-    """The rows (typed), without duplicates; only runs in ``keep`` if given. A run's curve
-    is written whole after the run, so a row whose update is not past the run's previous
-    row starts the run's curve again (the run re-done, e.g. ``--rerun-stale``): only the
-    last curve of each run is kept, never a mix of two."""
+    """The rows (typed), each run's in update order; only runs in ``keep`` if given. A
+    run's curve is written whole after the run, so a row whose update is not past the run's
+    previous row starts the run's curve again (the run re-done: a resume, or
+    ``--rerun-stale``): only the last curve of each run is kept, never a mix of two."""
     path = Path(path)
     reader = csv.DictReader(io.StringIO(csvlog.read_complete(path)))
     if reader.fieldnames is not None and tuple(reader.fieldnames) != COLUMNS:
         raise ValueError(f"{path} has columns {reader.fieldnames}, expected {list(COLUMNS)}")
-    rows, last = {}, {}
+    curves: dict = {}  # run -> its rows, in update order
     for r in reader:
         row = dict(task=r["task"], method=r["method"], seed=int(r["seed"]),
                    budget=r["budget"], update=int(r["update"]),
@@ -74,11 +74,11 @@ def read_curves(path, keep: set | None = None) -> list[dict]:
         run = (row["task"], row["method"], row["seed"], row["budget"])
         if keep is not None and run not in keep:
             continue
-        if run in last and row["update"] <= last[run]:
-            rows = {k: v for k, v in rows.items() if k[:4] != run}
-        last[run] = row["update"]
-        rows[(*run, row["update"])] = row
-    return list(rows.values())
+        curve = curves.setdefault(run, [])
+        if curve and row["update"] <= curve[-1]["update"]:
+            curve.clear()
+        curve.append(row)
+    return [row for curve in curves.values() for row in curve]
 
 
 def curve_bands(rows, x: str, points: int = 50) -> dict:

@@ -112,6 +112,12 @@ class TransporterConfig:
             raise ValueError(f"crop must be odd (centred on the pick), got {self.crop}")
 
     @property
+    def pictures_aligned_goal(self) -> bool:
+        """The goal's picture is drawn aligned to the object (``align_goal`` with a goal
+        picture at all)."""
+        return self.goal_image and self.align_goal
+
+    @property
     def mode(self) -> str:
         """The observation mode (:class:`dax_tasks.ObservationMode`)."""
         return "rgbd" if self.rgb else "height"
@@ -149,7 +155,7 @@ def observation_env(env, config: TransporterConfig) -> dax_tasks.ObservationMode
     """The env seen through the pictures the networks take."""
     return dax_tasks.ObservationMode(env, config.mode, config.image_size,
                                      goal_image=config.goal_image,
-                                     align_goal=config.goal_image and config.align_goal)
+                                     align_goal=config.pictures_aligned_goal)
 
 
 # ----------------------------------------------------------------------------- networks
@@ -398,7 +404,7 @@ def data_from_episodes(env, config: TransporterConfig, episodes) -> TransporterD
             height = ep.height[t][..., None]
             cur = (np.concatenate([np.asarray(rgb_as_float(ep.rgb[t])), height], axis=-1)
                    if config.rgb else height)
-            if config.goal_image and config.align_goal:
+            if config.pictures_aligned_goal:
                 if t not in steps:
                     raise ValueError(f"episode {ep.index}: no object points at step {t} "
                                      f"(points at steps {list(steps)}): align_goal needs "
