@@ -3,6 +3,8 @@ JSON line per record. Speed is measured with these and printed, never asserted i
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import resource
 import time
@@ -32,6 +34,22 @@ def median_time(fn, reps: int, min_time: float = 0.0, max_reps: int = 50,
         if len(times) >= max_reps:
             break
     return float(np.median(times)), times
+
+
+@contextlib.contextmanager
+def timing_lock(path):
+    """Hold an exclusive lock on the file ``path`` (created if missing) for the block, so
+    that processes sharing one accelerator time their calls one at a time while they
+    compile in parallel; ``path=None`` holds nothing."""
+    if path is None:
+        yield
+        return
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def timed_compile(fn, *args):

@@ -50,7 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks._timing import emit, median_time, peak_rss_mb, timed_compile
+from benchmarks._timing import emit, median_time, peak_rss_mb, timed_compile, timing_lock
 from dax_tasks import RESOLUTIONS, TASKS, VmapWrapper, available, make
 
 #: The original DaXBench benchmark, measured on the 2-core CPU class the README's tables
@@ -98,18 +98,20 @@ def resolution(env) -> dict:
     return out
 
 
-def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
-                grad: bool = True, clock=time.perf_counter) -> dict:
-    """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch. The params are an
-    argument of every timed function (data, as a learner passes them). ``grad=False``
-    skips the step-plus-gradient (its figures are then null); ``clock`` times the calls
-    (:func:`benchmarks._timing.median_time`)."""
+def prepare_batch(env, batch: int | None, grad: bool = True) -> dict:
+    """The compiled programs of one env (``batch=None``) or a :class:`VmapWrapper` batch,
+    ready to time (:func:`time_batch`): its reset, its step and (``grad``) the step plus
+    the gradient of the summed reward with respect to the actions, each compiled ahead of
+    time (``compile_*_s`` [s]) and called once, so that no timed call is a first call. The
+    params are an argument of every program (data, as a learner passes them). The actions
+    are the task's scripted expert's, else the middle of the action box. The gradient's
+    call gives ``grad_finite``, ``grad_norm`` (null when not finite) and its XLA
+    temporaries ``grad_temp_mb`` [MiB]."""
     if batch is not None:
         env = VmapWrapper(env, batch_size=batch)
     params = env.default_params
     key = jax.random.PRNGKey(0)
     reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
-    t_reset, _ = median_time(lambda: reset(key, params), reps, min_time, clock=clock)
     _, state = reset(key, params)
     if env.has_expert:
         action = jax.jit(env.expert_action)(state, params)
@@ -118,25 +120,56 @@ def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
         shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
         action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
-    t_step, _ = median_time(lambda: step(state, action, params), reps, min_time, clock=clock)
-    b = 1 if batch is None else batch
-    out = {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
-           "step_grad_s": None, "compile_reset_s": c_reset, "compile_step_s": c_step,
-           "compile_grad_s": None, "grad_finite": None, "grad_norm": None}
+    jax.block_until_ready(step(state, action, params))
+    prep = {"batch": 1 if batch is None else batch, "reset": (reset, (key, params)),
+            "step": (step, (state, action, params)), "grad": None,
+            "compile_reset_s": c_reset, "compile_step_s": c_step, "compile_grad_s": None,
+            "grad_finite": None, "grad_norm": None, "grad_temp_mb": None}
     if not grad:
-        return out
+        return prep
 
     def total_reward(a, s, p):
         return jnp.sum(env.step(s, a, p)[2])
 
-    grad = jax.jit(jax.value_and_grad(total_reward))
-    grad_c, c_grad = timed_compile(grad, action, state, params)
-    t_grad, _ = median_time(lambda: grad_c(action, state, params), reps, min_time, clock=clock)
+    grad_c, c_grad = timed_compile(jax.jit(jax.value_and_grad(total_reward)), action, state,
+                                   params)
     g = np.asarray(grad_c(action, state, params)[1])
     finite = bool(np.all(np.isfinite(g)))  # a NaN gradient is reported (null norm), not hidden
-    out.update(step_grad_s=t_grad, compile_grad_s=c_grad, grad_finite=finite,
-               grad_norm=float(np.linalg.norm(g)) if finite else None)
+    mem = grad_c.memory_analysis()
+    prep.update(grad=(grad_c, (action, state, params)), compile_grad_s=c_grad,
+                grad_finite=finite, grad_norm=float(np.linalg.norm(g)) if finite else None,
+                grad_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2 ** 20)
+    return prep
+
+
+def time_batch(prep: dict, reps: int, min_time: float = 0.0, clock=time.perf_counter,
+               lock=None) -> dict:
+    """Median call times [s] of a :func:`prepare_batch` result's programs: ``reset_s``,
+    ``step_s``, ``per_env_step_s`` and ``step_grad_s`` (null without the gradient), with
+    its compile times and gradient checks. ``clock`` times the calls
+    (:func:`benchmarks._timing.median_time`); ``lock``: a file whose exclusive lock is held
+    while timing (:func:`benchmarks._timing.timing_lock`), None for none."""
+    def med(entry):
+        fn, args = entry
+        return median_time(lambda: fn(*args), reps, min_time, clock=clock)[0]
+
+    with timing_lock(lock):
+        t_reset, t_step = med(prep["reset"]), med(prep["step"])
+        t_grad = None if prep["grad"] is None else med(prep["grad"])
+    b = prep["batch"]
+    out = {"batch": b, "reset_s": t_reset, "step_s": t_step, "per_env_step_s": t_step / b,
+           "step_grad_s": t_grad}
+    out.update({k: prep[k] for k in ("compile_reset_s", "compile_step_s", "compile_grad_s",
+                                     "grad_finite", "grad_norm", "grad_temp_mb")})
     return out
+
+
+def bench_batch(env, batch: int | None, reps: int, min_time: float = 0.0,
+                grad: bool = True, clock=time.perf_counter, lock=None) -> dict:
+    """Times of one env (``batch=None``) or a :class:`VmapWrapper` batch:
+    :func:`time_batch` of :func:`prepare_batch` (``grad=False`` skips the
+    step-plus-gradient; its figures are then null)."""
+    return time_batch(prepare_batch(env, batch, grad), reps, min_time, clock, lock)
 
 
 def bench_task(name: str, batches, reps: int, overrides: dict | None = None,
@@ -231,74 +264,108 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def _skip_reason(prev: dict | None, batch: int, limit_s: float, grad: bool) -> str | None:
-    """Why ``batch`` is not measured, from the last measured row ``prev`` (call times
-    scale about linearly with the batch on a CPU), or None."""
+def _skip_reason(prev: dict | None, batch: int, limit_s: float, grad: bool,
+                 linear: bool = True) -> str | None:
+    """Why ``batch`` is not measured, from the last measured row ``prev``, or None. With
+    ``linear`` (a CPU, whose call times grow about linearly with the batch) the last call
+    time is scaled by the batch ratio, else (an accelerator) taken as it is."""
     if prev is None or not prev.get("measured"):
         return None
     key = "grad_s" if grad and prev.get("grad_s") else "step_s"
-    est = prev[key] * batch / prev["batch"]
+    est = prev[key] * (batch / prev["batch"] if linear else 1.0)
     if est > limit_s:
         what = "step-plus-gradient" if key == "grad_s" else "step"
+        how = "scaled linearly" if linear else "unscaled"
         return (f"too heavy for this machine: one {what} call would take about {est:.2g} s "
-                f"(batch {prev['batch']}'s {prev[key]:.2f} s scaled linearly), over the "
+                f"(batch {prev['batch']}'s {prev[key]:.2f} s {how}), over the "
                 f"{limit_s:g} s limit per call (--max-call-s)")
     return None
 
 
-def throughput_row(env, batch: int, reps: int, min_time: float, grad: bool,
-                   clock=time.perf_counter) -> dict:
-    """One row of the throughput figure: ``env`` (unbatched) at ``batch`` (1: the env
-    itself, else a :class:`VmapWrapper`), the step and the step plus the gradient of the
-    summed reward with respect to the actions, each compiled ahead of time and then timed
-    (median call time ``step_s`` / ``grad_s`` [s]); ``steps_per_s`` / ``grad_steps_per_s``
-    = batch / median; the XLA temporaries of the gradient [MiB]; the 1-minute load average
-    before and after."""
+def throughput_row(prep: dict, reps: int, min_time: float, clock=time.perf_counter,
+                   lock=None) -> dict:
+    """One row of the throughput figure from a :func:`prepare_batch` result (batch 1: the
+    env itself, else a :class:`VmapWrapper`): the median call times ``step_s`` /
+    ``grad_s`` [s] of the step and of the step plus the gradient of the summed reward with
+    respect to the actions; ``steps_per_s`` / ``grad_steps_per_s`` = batch / median; the
+    compile times, the gradient's XLA temporaries [MiB]; the 1-minute load average before
+    and after; ``lock`` as in :func:`time_batch`."""
     load0 = _load()
-    rec = bench_batch(env, None if batch == 1 else batch, reps, min_time, grad, clock)
-    out = {"batch": batch, "measured": True, "step_s": rec["step_s"],
-           "steps_per_s": batch / rec["step_s"], "grad_s": rec["step_grad_s"],
-           "grad_steps_per_s": None if rec["step_grad_s"] is None
-           else batch / rec["step_grad_s"],
-           "compile_step_s": rec["compile_step_s"], "compile_grad_s": rec["compile_grad_s"],
-           "grad_finite": rec["grad_finite"], "peak_rss_mb": peak_rss_mb(),
-           "load_1min": [load0, _load()]}
-    return out
+    rec = time_batch(prep, reps, min_time, clock, lock)
+    batch = rec["batch"]
+    return {"batch": batch, "measured": True, "step_s": rec["step_s"],
+            "steps_per_s": batch / rec["step_s"], "grad_s": rec["step_grad_s"],
+            "grad_steps_per_s": None if rec["step_grad_s"] is None
+            else batch / rec["step_grad_s"],
+            "compile_step_s": rec["compile_step_s"], "compile_grad_s": rec["compile_grad_s"],
+            "grad_temp_mb": rec["grad_temp_mb"], "grad_finite": rec["grad_finite"],
+            "peak_rss_mb": peak_rss_mb(), "load_1min": [load0, _load()]}
+
+
+def _failed(batch: int, err: Exception) -> dict:
+    return {"batch": batch, "measured": False,
+            "reason": f"failed: {type(err).__name__}: {str(err)[:300]}"}
 
 
 def throughput(names, batches=THROUGHPUT_BATCHES, reps: int = 3, min_time: float = 0.0,
                resolution_name: str = "default", grad: bool = True, max_call_s: float = 30.0,
-               overrides: dict | None = None, clock=time.perf_counter) -> dict:
+               overrides: dict | None = None, clock=time.perf_counter,
+               lock=None, barrier=None) -> dict:
     """The throughput document (see :func:`throughput_main`): per task its resolution
     (:func:`resolution`) and one :func:`throughput_row` per batch size, in increasing
-    order; a batch whose call, scaled from the last measured batch, would exceed
-    ``max_call_s`` seconds is recorded ``measured: false`` with the reason, and so is one
-    whose compile or run fails (the error)."""
+    order. On a CPU a batch whose call, scaled linearly from the last measured batch,
+    would exceed ``max_call_s`` seconds is recorded ``measured: false`` with the reason
+    (on an accelerator, which runs a batch in parallel, the last call time is taken
+    unscaled); so is one whose compile or run fails (the error). ``lock``: see
+    :func:`time_batch`. ``barrier``: ``(ready, go)`` file paths: every program is compiled
+    first, then ``ready`` is created and the timing waits until ``go`` exists (so that
+    processes compiling in parallel time on a quiet machine)."""
+    device = jax.devices()[0]
     doc = {"bench": "throughput", "date": datetime.date.today().isoformat(),
            "resolution": resolution_name, "batches": sorted(batches), "reps": reps,
            "min_time_s": min_time, "max_call_s": max_call_s,
            "clock": "process" if clock is time.process_time else "wall",
-           "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
+           "device": str(device), "device_kind": device.device_kind,
+           "cpu_count": os.cpu_count(),
            "machine": platform.machine(), "jax": jax.__version__,
            # compile times with a persistent cache that holds the program are its load time
            "compilation_cache": bool(jax.config.jax_compilation_cache_dir),
            "load_1min_start": _load(), "tasks": []}
+    linear = device.platform == "cpu"
+    envs = {name: make(name, resolution=resolution_name, **(overrides or {}))
+            for name in names}
+
+    def prepare(name, b):
+        print(f"[benchmarks.tasks throughput] {name} ({resolution_name}) batch {b}",
+              file=sys.stderr, flush=True)
+        try:
+            return prepare_batch(envs[name], None if b == 1 else b, grad)
+        except Exception as err:  # noqa: BLE001 - recorded, the run goes on
+            return err
+
+    preps = {}
+    if barrier is not None:
+        preps = {(n, b): prepare(n, b) for n in names for b in sorted(batches)}
+        ready, go = barrier
+        Path(ready).touch()
+        while not os.path.exists(go):
+            time.sleep(0.5)
     for name in names:
-        env = make(name, resolution=resolution_name, **(overrides or {}))
-        task = {"task": name, **resolution(env), "rows": []}
+        task = {"task": name, **resolution(envs[name]), "rows": []}
         prev = None
         for b in sorted(batches):
-            print(f"[benchmarks.tasks throughput] {name} ({resolution_name}) batch {b}",
-                  file=sys.stderr, flush=True)
-            reason = _skip_reason(prev, b, max_call_s, grad)
-            if reason is None:
-                try:
-                    row = throughput_row(env, b, reps, min_time, grad, clock)
-                except Exception as err:  # noqa: BLE001 - recorded, the run goes on
-                    row = {"batch": b, "measured": False,
-                           "reason": f"failed: {type(err).__name__}: {str(err)[:300]}"}
-            else:
+            reason = _skip_reason(prev, b, max_call_s, grad, linear)
+            if reason is not None:
                 row = {"batch": b, "measured": False, "reason": reason}
+            else:
+                prep = preps.pop((name, b), None) or prepare(name, b)
+                if isinstance(prep, Exception):
+                    row = _failed(b, prep)
+                else:
+                    try:
+                        row = throughput_row(prep, reps, min_time, clock, lock)
+                    except Exception as err:  # noqa: BLE001 - recorded, the run goes on
+                        row = _failed(b, err)
             task["rows"].append(row)
             if row["measured"]:
                 prev = row
@@ -327,22 +394,128 @@ def throughput_main(argv=None, overrides: dict | None = None) -> dict:
                         "measured batch, would take longer than this [s]")
     p.add_argument("--no-grad", action="store_true")
     p.add_argument("--clock", choices=("wall", "process"), default="wall")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="compile in this many processes at once (one per task), each "
+                        "timing only while it holds a shared lock, so the timed calls "
+                        "never overlap: for a machine with many cores and one accelerator")
+    p.add_argument("--time-lock", default=None, help=argparse.SUPPRESS)  # set by --jobs
+    p.add_argument("--barrier", default=None, help=argparse.SUPPRESS)  # READY,GO: by --jobs
     p.add_argument("--out", default=None, help="write the JSON document here too")
+    argv = sys.argv[2:] if argv is None else list(argv)
     args = p.parse_args(argv)
     try:
         names = parse_tasks(args.tasks)
         batches = [int(b) for b in args.batch.split(",")]
     except ValueError as err:
         p.error(str(err))
-    if any(b < 1 for b in batches) or args.reps < 1:
-        p.error("batch sizes and --reps must be >= 1")
+    if any(b < 1 for b in batches) or args.reps < 1 or args.jobs < 1:
+        p.error("batch sizes, --reps and --jobs must be >= 1")
     clock = time.process_time if args.clock == "process" else time.perf_counter
-    doc = throughput(names, batches, args.reps, args.min_time, args.resolution,
-                     not args.no_grad, args.max_call_s, overrides, clock)
-    doc["command"] = "python -m benchmarks.tasks throughput " + " ".join(
-        argv if argv is not None else sys.argv[2:])
+    if args.jobs > 1 and len(names) > 1:
+        doc = _throughput_jobs(names, sorted(batches), argv, args.jobs, args.out)
+    else:
+        doc = throughput(names, batches, args.reps, args.min_time, args.resolution,
+                         not args.no_grad, args.max_call_s, overrides, clock,
+                         args.time_lock,
+                         None if args.barrier is None else args.barrier.split(","))
+    doc["command"] = "python -m benchmarks.tasks throughput " + " ".join(argv)
     write_report(doc, args.out)
     return doc
+
+
+def _without_option(argv: list, name: str) -> list:
+    """``argv`` less the option ``name`` and its value (``--name V`` or ``--name=V``)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == name:
+            skip = True
+        elif not a.startswith(name + "="):
+            out.append(a)
+    return out
+
+
+def _throughput_jobs(names: list, batches: list, argv: list, jobs: int,
+                     out: str | None = None) -> dict:
+    """The throughput document of ``names``, one child process per task
+    (``python -m benchmarks.tasks throughput --tasks NAME``, the other options of ``argv``
+    passed on), at most ``jobs`` at once. The children compile all their programs in
+    parallel; once every running child has (or has exited), they time, one at a time (a
+    lock file), so no timed call overlaps another's call or compile when ``jobs`` is at
+    least the number of tasks. The children's tasks are merged in the order of ``names``;
+    a child that fails leaves its task's rows ``measured: false`` with its exit status.
+    ``jobs`` is recorded and the loads span all children. Children do not preallocate
+    accelerator memory. With ``out``, the document so far is written there (atomically)
+    as each child ends, so a run cut short keeps its finished tasks."""
+    import subprocess
+    import tempfile
+
+    from dax_tasks.io import atomic_write
+
+    base = argv
+    for opt in ("--tasks", "--jobs", "--out", "--time-lock", "--barrier"):
+        base = _without_option(base, opt)
+    env = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    docs = {}
+
+    def merged() -> dict:
+        done = [docs[n] for n in names if n in docs and "bench" in docs[n]]
+        doc = {k: v for k, v in (done[0] if done else {}).items()
+               if k not in ("tasks", "command")}
+        doc.update(bench="throughput", batches=batches, jobs=jobs)
+        if done:
+            doc["load_1min_start"] = min(d["load_1min_start"] for d in done)
+            doc["load_1min_end"] = max(d["load_1min_end"] for d in done)
+        doc["tasks"] = [t for n in names if n in docs for t in docs[n]["tasks"]]
+        return doc
+
+    with tempfile.TemporaryDirectory(prefix="dax-throughput-") as tmp:
+        lock = os.path.join(tmp, "timing.lock")
+        procs, pending, wave = {}, list(names), 0
+        while pending or procs:
+            if not procs:  # a new wave of at most `jobs` children, one barrier each
+                wave += 1
+                go = os.path.join(tmp, f"go.{wave}")
+                while pending and len(procs) < jobs:
+                    name = pending.pop(0)
+                    part = os.path.join(tmp, f"{name}.json")
+                    ready = os.path.join(tmp, f"ready.{name}")
+                    cmd = [sys.executable, "-m", "benchmarks.tasks", "throughput", *base,
+                           "--tasks", name, "--time-lock", lock, "--out", part,
+                           "--barrier", f"{ready},{go}"]
+                    procs[name] = (subprocess.Popen(cmd, env=env,
+                                                    stdout=subprocess.DEVNULL), part, ready)
+            time.sleep(1.0)
+            if all(os.path.exists(r) or pr.poll() is not None
+                   for pr, _, r in procs.values()):
+                Path(go).touch()
+            for name, (proc, part, _) in list(procs.items()):
+                if proc.poll() is None:
+                    continue
+                del procs[name]
+                if proc.returncode == 0 and os.path.exists(part):
+                    docs[name] = json.loads(Path(part).read_text())
+                else:
+                    reason = (f"failed: the child process exited with status "
+                              f"{proc.returncode} (its stderr is in the run's log)")
+                    docs[name] = {"tasks": [{"task": name, "rows": [
+                        {"batch": b, "measured": False, "reason": reason}
+                        for b in batches]}]}
+                if out:
+                    atomic_write(out, json.dumps(merged(), indent=1) + "\n")
+    return merged()
+
+
+def _device_words(doc: dict) -> str:
+    """The device of a throughput document in words: its kind where recorded (an
+    accelerator's model name), and how the compiles ran when they ran in parallel."""
+    kind = doc.get("device_kind")
+    words = doc["device"] if not kind or kind == "cpu" else f"{kind} ({doc['device']})"
+    if doc.get("jobs", 1) > 1:
+        words += (f", compiled in {doc['jobs']} processes at once whose timed calls "
+                  "took turns")
+    return words
 
 
 def _rate(x: float | None) -> str:
@@ -389,7 +562,7 @@ def render_throughput_table(path) -> str:
     lines += ["", f"Env steps per second = batch / median call time ({doc['reps']} calls "
               f"after an ahead-of-time compile, {doc['clock']} clock); with grad: the step "
               f"plus the gradient of the summed reward with respect to the actions. "
-              f"{doc['date']}, {doc['device']} ({doc['cpu_count']} cores, jax "
+              f"{doc['date']}, {_device_words(doc)} ({doc['cpu_count']} cores, jax "
               f"{doc['jax']}), 1-minute load average {load} during the runs; "
               f"`{path.as_posix()}` (`{doc.get('command', 'benchmarks.tasks throughput')}`)."]
     for i, n in enumerate(notes, 1):

@@ -41,12 +41,34 @@ def test_throughput_document_and_its_table(tmp_path, capsys):
     assert capsys.readouterr().out == table
 
 
-def test_the_dax_tasks_readme_holds_a_generated_throughput_table():
+def test_jobs_compile_in_parallel_and_merge_in_task_order(tmp_path, capsys):
+    out = tmp_path / "tp.json"
+    doc = bench.main(["throughput", "--tasks", "whip_rope,fold_cloth1", "--batch", "1",
+                      "--reps", "1", "--no-grad", "--jobs", "2", "--out", str(out)])
+    capsys.readouterr()
+    assert doc == json.loads(out.read_text()) and doc["jobs"] == 2
+    assert [t["task"] for t in doc["tasks"]] == ["whip_rope", "fold_cloth1"]
+    for task in doc["tasks"]:
+        (row,) = task["rows"]
+        assert row["measured"] and row["step_s"] > 0 and row["grad_s"] is None
+    assert "--jobs 2" in doc["command"] and "--barrier" not in doc["command"]
+    assert "compiled in 2 processes at once" in bench.render_throughput_table(out)
+
+
+def test_skip_rule_scales_linearly_on_a_cpu_only():
+    prev = {"measured": True, "batch": 1, "step_s": 0.5, "grad_s": 2.0}
+    assert "scaled linearly" in bench._skip_reason(prev, 16, 30.0, True, linear=True)
+    assert bench._skip_reason(prev, 16, 30.0, True, linear=False) is None
+    assert "unscaled" in bench._skip_reason(prev, 16, 1.0, True, linear=False)
+    assert bench._skip_reason(None, 16, 0.001, True) is None
+
+
+def test_the_dax_tasks_readme_holds_generated_throughput_tables():
     blocks = [argv for _, argv in tables.blocks(README.read_text()) if argv[0] == "throughput"]
-    assert len(blocks) == 1, blocks
-    (_, path), = blocks
-    doc = json.loads((tables.ROOT / path).read_text())
-    assert doc["bench"] == "throughput" and doc["batches"] == [1, 16, 64]
-    assert {t["task"] for t in doc["tasks"]} == set(bench.available())
+    assert blocks, "no generated throughput table"
+    for _, path in blocks:
+        doc = json.loads((tables.ROOT / path).read_text())
+        assert doc["bench"] == "throughput" and doc["batches"] == [1, 16, 64]
+        assert [t["task"] for t in doc["tasks"]] == list(bench.available()), path
     # the block is what the file renders now (test_readme_tables checks every block too)
     assert [a for a, _ in tables.stale_blocks(README) if a.startswith("throughput")] == []
