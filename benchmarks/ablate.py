@@ -50,6 +50,7 @@ import dax_tasks
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
 from dax_algos.bench import execute, provenance, report
+from dax_algos.learner import untrained_key
 from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
 
@@ -124,10 +125,9 @@ def make_scorer(env, method, config):
 
 def untrained_policy(env, method, config, seed: int):
     """The policy before training (:meth:`dax_algos.learner.Learner.untrained`): the
-    network's initial parameters drawn from the seed's key and the normaliser's initial
-    statistics."""
-    return method.learner.untrained(env, config,
-                                    jax.random.fold_in(jax.random.PRNGKey(seed), 1))
+    network's initial parameters drawn from the seed's key as the runner draws them
+    (:func:`dax_algos.learner.untrained_key`) and the normaliser's initial statistics."""
+    return method.learner.untrained(env, config, untrained_key(jax.random.PRNGKey(seed)))
 
 
 def read_records(path) -> list[dict]:

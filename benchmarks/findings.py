@@ -59,25 +59,18 @@ FINDINGS = (
 )
 
 
-#: A stale row's reason (:func:`dax_algos.bench.provenance.stale_reason`), in short.
-_STALE_KINDS = (("spec changed", "the task's spec changed"),
-                ("code changed", "the dax-tasks or dax-physics code changed"),
-                ("config changed", "the method's config changed"),
-                ("", "its provenance is unknown or it cannot be checked"))
-
-
 def stale_note(reasons: list[str], n_rows: int, included: bool) -> str:
     """The footer phrase for the stale rows of a table (``""`` when none is): how many,
-    left out or included, and, when included, why each is stale (counted by kind)."""
+    left out or included, and, when included, why each is stale (counted by kind,
+    :func:`dax_algos.bench.report.stale_kinds`)."""
     if not reasons:
         return ""
     if not included:
         return f", {len(reasons)} stale rows left out"
-    counts: dict = {}
-    for why in reasons:
-        kind = next(text for key, text in _STALE_KINDS if key in why)
-        counts[kind] = counts.get(kind, 0) + 1
-    return (f", **{len(reasons)} of {n_rows} rows are stale** and included (measured before "
+    from dax_algos.bench import report
+
+    counts = report.stale_kinds(reasons)
+    return (f", **{len(reasons)} of {n_rows} rows are stale** and included (why: "
             + "; ".join(f"{text}: {n}" for text, n in counts.items()) + ")")
 
 

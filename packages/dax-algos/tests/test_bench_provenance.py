@@ -142,3 +142,18 @@ def test_rerun_stale_runs_again_only_the_runs_whose_rows_are_stale(grid, monkeyp
     assert sorted((r["method"], r["seed"]) for r in added) == [("ppo", "0"), ("ppo", "1")]
     today = provenance.Today(OVERRIDES, {"ppo": PPO})
     assert all(not provenance.stale_reason(r, today) for r in latest(after))
+
+
+def test_stale_reasons_are_counted_by_kind_a_row_under_each_of_its_reasons():
+    from dax_algos.bench import report
+
+    reasons = ["the dax-tasks or dax-physics code changed (fingerprint a, today b)",
+               "the dax-tasks or dax-physics code changed (fingerprint c, today b); the "
+               "method's config changed (config d, today e)",
+               "the task's spec changed (fingerprint f, today g)",
+               provenance.UNKNOWN]
+    assert report.stale_kinds(reasons) == {
+        "the task's spec changed": 1, "the dax-tasks or dax-physics code changed": 2,
+        "the method's config changed": 1,
+        "provenance unknown or not checkable": 1}
+    assert report.stale_kinds([]) == {}

@@ -179,11 +179,18 @@ def stats_from_metrics(m: UpdateMetrics) -> PlanStats:
         grad_steps=m.grad_steps, nonfinite_grads=m.nonfinite)
 
 
+def untrained_key(key) -> jax.Array:
+    """The key the untrained policy of a seed is drawn from, given the seed's episode key
+    (``PRNGKey(seed)``): ``fold_in(key, 2)``, apart from the training's (1) and the
+    evaluation's (0). The runner's untrained column and the ablations' use it."""
+    return jax.random.fold_in(key, 2)
+
+
 def learner_episode(learner: Learner, env, config) -> Callable:
     """``episode(key, params, *data) -> LearnOutput``: train from ``fold_in(key, 1)`` (with
     ``data``, e.g. demonstrations, for a method whose ``train`` takes them), then evaluate
     from ``fold_in(key, 0)`` with ``params`` (the learner's ``make_evaluate``), and the
-    untrained policy (:meth:`Learner.untrained` of ``fold_in(key, 2)``) on the same
+    untrained policy (:meth:`Learner.untrained` of :func:`untrained_key`) on the same
     starts. Pure; the runner jits it and calls it per seed."""
     train = learner.make_train(env, config)
     evaluate = learner.make_evaluate(env, config, learner.make_act(env, config))
@@ -191,7 +198,7 @@ def learner_episode(learner: Learner, env, config) -> Callable:
     def episode(key, params, *data):
         policy, metrics = train(jax.random.fold_in(key, 1), params, *data)
         start = jax.random.fold_in(key, 0)
-        untrained = learner.untrained(env, config, jax.random.fold_in(key, 2))
+        untrained = learner.untrained(env, config, untrained_key(key))
         # both policies through one traced evaluation (a two-step lax.map, run one after
         # the other as before): the rollout is compiled once, not twice
         untrained = jax.tree.map(lambda u, t: u.astype(t.dtype), untrained, policy)

@@ -160,6 +160,25 @@ def stale_lines(rows, stale, include_stale: bool) -> list[str]:
     return lines
 
 
+#: The kinds of a stale row's reason (:func:`dax_algos.bench.provenance.stale_reason`):
+#: (words the reason holds, the kind in words); a reason with none of them is the last.
+STALE_KINDS = (("spec changed", "the task's spec changed"),
+               ("code changed", "the dax-tasks or dax-physics code changed"),
+               ("config changed", "the method's config changed"),
+               ("", "provenance unknown or not checkable"))
+
+
+def stale_kinds(reasons) -> dict:
+    """``{kind in words: rows}`` of stale rows' ``reasons``, in :data:`STALE_KINDS` order;
+    a row stale for two reasons counts under both."""
+    counts = dict.fromkeys((text for _, text in STALE_KINDS), 0)
+    for why in reasons:
+        kinds = [text for words, text in STALE_KINDS[:-1] if words in why]
+        for text in kinds or [STALE_KINDS[-1][1]]:
+            counts[text] += 1
+    return {text: n for text, n in counts.items() if n}
+
+
 def stale_groups(rows, stale) -> dict:
     """``{reason: [rows]}`` of the stale ``rows``, reasons in order of first appearance."""
     out: dict = {}

@@ -124,10 +124,11 @@ def _provenance_text(rows, stale, n_stale, include_stale) -> str:
         commits = sorted({r["commit"][:12] for r in rows if r.get("commit")})
         return ("Measured on today's task specs, code and method configs"
                 + (f" (commit {', '.join(commits)})." if commits else "."))
-    reasons = "; ".join(f"{len(rs)}: {why}" for why, rs in report.stale_groups(
-        [r for r in rows if stale[key(r)]], stale).items())
+    kinds = report.stale_kinds(stale[key(r)] for r in rows if stale[key(r)])
     what = "included, marked †" if include_stale else "left out"
-    return f"**{n_stale} of {len(rows)} rows are stale** ({what}) — {reasons}."
+    return (f"**{n_stale} of {len(rows)} rows are stale** ({what}) — why (rows): "
+            + "; ".join(f"{text} ({n})" for text, n in kinds.items())
+            + " (each row's fingerprint and config: the grid's page, Stale rows).")
 
 
 def budgets(rows, budget: str | None) -> str:
