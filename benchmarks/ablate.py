@@ -73,10 +73,15 @@ VARIANTS = {
             "lr_linear": {"lr_schedule": "linear"},
             # a batch whose gradient has a direction (benchmarks.gradient_noise): the same
             # 40 updates with 8x the episodes
-            "big_batch": {"num_envs": 32, "total_env_steps": 3840}},
+            "big_batch": {"num_envs": 32, "total_env_steps": 3840},
+            # a budget read off the curve: Whip-Rope's heavy budget (7 updates of 4 x 10
+            # steps) ends where its curve is still "too short" to read; 5x the updates
+            "long": {"total_env_steps": 1400}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
              "object_frame": {"frame": "object"},
-             "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0}},
+             "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},
+             # Whip-Rope's heavy budget (8 updates of 4 x 10 steps), 5x the updates
+             "long": {"total_env_steps": 1600}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
