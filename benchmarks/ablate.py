@@ -81,7 +81,9 @@ VARIANTS = {
              "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},
              # Whip-Rope's heavy budget (8 updates of 4 x 10 steps), 5x the updates
-             "long": {"total_env_steps": 1600}},
+             "long": {"total_env_steps": 1600},
+             # and a smaller actor step (its gradient norm grows 100x as the curve falls)
+             "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
