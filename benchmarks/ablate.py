@@ -106,7 +106,11 @@ VARIANTS = {
             "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000},
             # and a discount that sees the score's step (0.9 per step: a 10-step horizon)
             "big_batch_d99": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000,
-                              "discount": 0.99}},
+                              "discount": 0.99},
+            # and a step matched to that gradient's signal-to-noise (0.46 at 3,200 samples):
+            # the baseline is this batch at the default rate since it became the budget
+            "big_batch_lr_low": {"num_envs": 64, "unroll_length": 50,
+                                 "total_env_steps": 16000, "learning_rate": 1e-4}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
