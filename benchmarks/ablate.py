@@ -82,7 +82,7 @@ VARIANTS = {
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},
              # Whip-Rope's heavy budget (8 updates of 4 x 10 steps), 5x the updates
              "long": {"total_env_steps": 1600},
-             # and a smaller actor step (its gradient norm grows 100x as the curve falls)
+             # and a smaller actor step (the raw gradient norm grows as `long`'s curve falls)
              "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
@@ -107,7 +107,7 @@ VARIANTS = {
             # and a discount that sees the score's step (0.9 per step: a 10-step horizon)
             "big_batch_d99": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000,
                               "discount": 0.99},
-            # and a step matched to that gradient's signal-to-noise (0.46 at 3,200 samples):
+            # and a step matched to that gradient's signal-to-noise (benchmarks.gradient_noise):
             # the baseline is this batch at the default rate since it became the budget
             "big_batch_lr_low": {"num_envs": 64, "unroll_length": 50,
                                  "total_env_steps": 16000, "learning_rate": 1e-4}},
