@@ -114,7 +114,10 @@ VARIANTS = {
             # and exploration noise that keeps the training episodes near what the
             # deterministic policy scores (std 0.22 pre-tanh instead of 0.61)
             "big_batch_std_low": {"num_envs": 64, "unroll_length": 50,
-                                  "total_env_steps": 16000, "init_log_std": -1.5}},
+                                  "total_env_steps": 16000, "init_log_std": -1.5},
+            # a batch at the size where the first gradient's signal-to-noise reaches 1
+            # (benchmarks.gradient_noise: about 15,000 samples on Whip-Rope), 5 updates
+            "huge_batch": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 80000}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
