@@ -54,6 +54,10 @@ from dax_algos.learner import untrained_key
 from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
 
+#: PPO's batch of 64 whole Whip-Rope episodes per update (64 envs x 50 steps), 5 updates:
+#: ``big_batch`` and the variants built on it.
+_PPO_WHOLE_EPISODES_64 = {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000}
+
 #: Per method: variant name -> config fields changed from the budget's. Names say the
 #: hypothesis (issue 36): the normaliser inside the differentiated rollout (``raw_obs``),
 #: Adam after the gradient clip (``no_clip``, ``lr_low``), the training objective against
@@ -103,20 +107,17 @@ VARIANTS = {
                                        "total_env_steps": 1920, "init_log_std": -1.5},
             # a batch whose gradient has a direction (benchmarks.gradient_noise): 64 whole
             # episodes per update
-            "big_batch": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000},
+            "big_batch": _PPO_WHOLE_EPISODES_64,
             # and a discount that sees the score's step (0.9 per step: a 10-step horizon)
-            "big_batch_d99": {"num_envs": 64, "unroll_length": 50, "total_env_steps": 16000,
-                              "discount": 0.99},
+            "big_batch_d99": {**_PPO_WHOLE_EPISODES_64, "discount": 0.99},
             # and a step matched to that gradient's signal-to-noise (benchmarks.gradient_noise):
             # the baseline is this batch at the default rate since it became the budget
-            "big_batch_lr_low": {"num_envs": 64, "unroll_length": 50,
-                                 "total_env_steps": 16000, "learning_rate": 1e-4},
+            "big_batch_lr_low": {**_PPO_WHOLE_EPISODES_64, "learning_rate": 1e-4},
             # and exploration noise that keeps the training episodes near what the
             # deterministic policy scores (std 0.22 pre-tanh instead of 0.61)
-            "big_batch_std_low": {"num_envs": 64, "unroll_length": 50,
-                                  "total_env_steps": 16000, "init_log_std": -1.5},
-            # a batch at the size where the first gradient's signal-to-noise reaches 1
-            # (benchmarks.gradient_noise: about 15,000 samples on Whip-Rope), 5 updates
+            "big_batch_std_low": {**_PPO_WHOLE_EPISODES_64, "init_log_std": -1.5},
+            # a batch at the size where the first gradient's signal-to-noise reaches 1 on
+            # Whip-Rope (benchmarks.gradient_noise's "samples for SNR 1"), 5 updates
             "huge_batch": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 80000}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
