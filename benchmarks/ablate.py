@@ -118,7 +118,10 @@ VARIANTS = {
             "big_batch_std_low": {**_PPO_WHOLE_EPISODES_64, "init_log_std": -1.5},
             # a batch at the size where the first gradient's signal-to-noise reaches 1 on
             # Whip-Rope (benchmarks.gradient_noise's "samples for SNR 1"), 5 updates
-            "huge_batch": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 80000}},
+            "huge_batch": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 80000},
+            # the same batch for 2 updates: huge_batch's training return peaks at its
+            # second update on Whip-Rope and falls after
+            "huge_batch_2": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 32000}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
