@@ -390,11 +390,15 @@ def main(argv=None) -> int:
     records = read_records(out)
     done = {(r["variant"], r["seed"]) for r in records}
     t0 = time.monotonic()
+
+    def expired() -> bool:
+        return args.max_minutes is not None and time.monotonic() - t0 > 60 * args.max_minutes
+
     for name in names:
         todo = [s for s in range(args.seeds) if (name, s) not in done]
         if not todo:
             continue
-        if args.max_minutes is not None and time.monotonic() - t0 > 60 * args.max_minutes:
+        if expired():
             break
         for rec in run_seeds(args.task, args.method, name, table[name], todo, args.budget,
                              sets, args.demos):
@@ -403,6 +407,10 @@ def main(argv=None) -> int:
                                                       "untrained", "wall_s", "error")}),
                   file=sys.stderr, flush=True)
             write(out, records)
+            if expired():  # between seeds too: one variant's seeds can take hours
+                break
+        if expired():
+            break
     summaries = write(out, records)
     for s in summaries:
         print(json.dumps(s))

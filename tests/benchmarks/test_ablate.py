@@ -57,3 +57,26 @@ def test_a_resumed_run_reads_the_records_and_drops_a_torn_line(tmp_path):
     assert text.count('"summary": true') == 1  # the summary is rewritten, not read back
     path.write_text(text + json.dumps(_rec("baseline", 2, 0.6))[:40])  # a killed writer
     assert ablate.read_records(path) == records
+
+
+def test_max_minutes_stops_between_seeds_of_one_variant(tmp_path, monkeypatch):
+    """``--max-minutes`` is read after every seed, not only between variants: a run of
+    2-minute seeds with 3 minutes left stops after its second seed and starts no other
+    variant; the records written so far stay on disk for the resumed run."""
+    clock = [0.0]
+    monkeypatch.setattr(ablate.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
+    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
+
+    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
+        for seed in seeds:
+            clock[0] += 120.0
+            yield {**_rec(variant, seed, 0.5), "method": method, "task": task}
+
+    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    out = tmp_path / "ablate.jsonl"
+    argv = ["apg", "fold_cloth1", "--variants", "baseline,raw_obs", "--seeds", "5",
+            "--max-minutes", "3", "--out", str(out)]
+    assert ablate.main(argv) == 0
+    assert [(r["variant"], r["seed"]) for r in ablate.read_records(out)] == [
+        ("baseline", 0), ("baseline", 1)]
