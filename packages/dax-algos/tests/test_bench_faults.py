@@ -243,6 +243,29 @@ def test_max_minutes_stops_between_runs_and_the_same_command_resumes(tmp_path, m
     assert len(rows) == 3 and rows.left == 0 and rows.left_text() == ""
 
 
+def test_the_page_is_rewritten_while_a_long_grid_runs(tmp_path, monkeypatch, capsys):
+    """Every REFRESH_MINUTES (here 0: after every run) the reports are rewritten from the
+    rows written so far, and once more at the end; a failure to write them mid-grid is a
+    warning, not a lost grid."""
+    from dax_algos.bench import summary
+
+    seen = []
+    write = summary.write_reports
+
+    def spy(rows, out, *a, **k):
+        seen.append(len(rows))
+        if len(seen) == 1:
+            raise OSError("disk full")
+        return write(rows, out, *a, **k)
+
+    monkeypatch.setattr(grid, "REFRESH_MINUTES", 0.0)
+    monkeypatch.setattr(summary, "write_reports", spy)
+    rows = _run(tmp_path, seeds=3)
+    assert len(rows) == 3 and seen == [1, 2, 3, 3]
+    assert "the reports were not rewritten: disk full" in capsys.readouterr().err
+    assert (tmp_path / "index.html").is_file()
+
+
 def test_the_cli_says_what_is_left_with_exit_3(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(Plan, "time_is_up", lambda self: True)
     code, _, err = _cli(capsys, "run", "--tasks", TASK, "--methods", "random,expert",

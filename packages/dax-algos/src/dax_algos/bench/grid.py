@@ -23,6 +23,7 @@ import itertools
 import json
 import os
 import shlex
+import sys
 import time
 from collections import Counter
 from collections.abc import Iterable, Mapping
@@ -44,6 +45,13 @@ from .rows import append_row, check_name, errors_of, key, latest, read_rows, upg
 BACKENDS = ("local", "ray")
 #: the most seeds a grid can have: seeds 0 .. 2**32 - 1 are PRNGKey's distinct seeds
 MAX_SEEDS = 2**32
+
+#: While a grid runs, its reports (the page, ``results.md``, the charts) are rewritten
+#: after a run finishes once this many minutes have passed since they were last written,
+#: so that a grid of hours can be read as it goes (the reports take tens of seconds on a
+#: paper-sized results file; a run of a full budget takes minutes). They are always
+#: written when the grid ends.
+REFRESH_MINUTES = 15.0
 
 
 def resolve_tasks(spec: str | Iterable[str]) -> list[str]:
@@ -143,7 +151,8 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     longer counts); ``False`` leaves failed runs as they are. max_minutes: start no run
     after this many minutes (a run under way finishes; the reports are written; the
     rows returned say what is left); ``None``: no limit. include_stale: the reports count
-    stale rows (:func:`dax_algos.bench.summary.write_reports`). rerun_stale: a run whose
+    stale rows (:func:`dax_algos.bench.summary.write_reports`; written when the grid ends
+    and, while it runs, every :data:`REFRESH_MINUTES` at the end of a run). rerun_stale: a run whose
     row is stale (:func:`dax_algos.bench.provenance.stale_reason`: measured on other
     dax-tasks / dax-physics code, task spec or method config than today's) is run again;
     its new row is the one that counts (the old one stays in the file). Default: a run
@@ -191,18 +200,24 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
         plan = Plan(task_names, method_names, seeds, budget, current, retry_failed,
                     None if max_minutes is None else time.monotonic() + 60 * max_minutes,
                     redo)
-        envs = _run_todo(plan, out, task_overrides, method_overrides, cache_goal, progress,
-                         demo_dir, backend, dict(address=ray_address, num_cpus=ray_cpus))
-        result = GridRows(latest(read_rows(csv_path)))
-        result.left, result.left_by_task = plan.left()
+        envs: dict = {}  # the tasks built so far, as this run built them
 
-        def make_env(task):  # the task as this run built it
+        def make_env(task):
             if task not in envs:
                 envs[task] = dax_tasks.make(task, cache_goal=cache_goal,
                                             **task_overrides.get(task, {}))
             return envs[task]
 
-        summary.write_reports(result, out, budget, make_env, include_stale, today)
+        def write_reports():
+            rows = GridRows(latest(read_rows(csv_path)))
+            summary.write_reports(rows, out, budget, make_env, include_stale, today)
+            return rows
+
+        _run_todo(plan, out, task_overrides, method_overrides, cache_goal, progress,
+                  demo_dir, backend, dict(address=ray_address, num_cpus=ray_cpus), envs,
+                  write_reports)
+        result = write_reports()
+        result.left, result.left_by_task = plan.left()
         return result
 
 
@@ -292,18 +307,28 @@ def _check_backend(backend, ray_address, ray_cpus) -> None:
 
 
 def _run_todo(plan: Plan, out, task_overrides, method_overrides, cache_goal, progress,
-              demo_dir, backend, ray_options) -> dict:
+              demo_dir, backend, ray_options, envs: dict, write_reports) -> None:
     """Run the runs of ``plan`` with ``backend``, recording each result in ``out`` as it
-    finishes (a status line ticks every second, :class:`dax_algos.bench.progress.Clock`);
-    returns the tasks the local backend built (``{task: env}``)."""
+    finishes (a status line ticks every second, :class:`dax_algos.bench.progress.Clock`)
+    and calling ``write_reports()`` after a run once :data:`REFRESH_MINUTES` have passed
+    since the last call (a failure there is reported on stderr; the grid goes on); the
+    local backend keeps the tasks it builds in ``envs`` (``{task: env}``)."""
     clock = Clock(plan.total, plan.groups() if backend == "local" else 0, enabled=progress)
+    last_reports = time.monotonic()
 
     def finished(result):  # the driver alone writes the output directory
+        nonlocal last_reports
         plan.record(result)
         record(out, result)
         clock.finished(result.row)
+        if time.monotonic() - last_reports >= 60 * REFRESH_MINUTES:
+            try:
+                write_reports()
+            except Exception as err:  # noqa: BLE001 - the page waits; the runs go on
+                print(f"dax-bench: warning: the reports were not rewritten: {err}",
+                      file=sys.stderr)
+            last_reports = time.monotonic()
 
-    envs: dict = {}
     try:
         if backend == "ray":
             backends.run_ray(iter(plan), plan.budget, task_overrides, method_overrides,
@@ -314,7 +339,6 @@ def _run_todo(plan: Plan, out, task_overrides, method_overrides, cache_goal, pro
                        finished, clock)
     finally:
         clock.close()
-    return envs
 
 
 def _run_local(plan: Plan, task_overrides, method_overrides, cache_goal, demo_dir, envs,
