@@ -121,7 +121,12 @@ VARIANTS = {
             "huge_batch": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 80000},
             # the same batch for 2 updates: huge_batch's training return peaks at its
             # second update on Whip-Rope and falls after
-            "huge_batch_2": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 32000}},
+            "huge_batch_2": {"num_envs": 64, "unroll_length": 250, "total_env_steps": 32000},
+            # the budget's first 1-4 updates (a constant step size: each is the start of
+            # the baseline's run), scored as the baseline is: the curve of the
+            # deterministic policy that the training episodes' curve does not show
+            **{f"updates_{k}": {**_PPO_WHOLE_EPISODES_64, "total_env_steps": 3200 * k}
+               for k in range(1, 5)}},
     "transporter": {"baseline": {}, "aligned_goal": {"align_goal": True},
                     "no_goal": {"goal_image": False},
                     "rotate_any": {"augment_rotation": 3.141592653589793}},
