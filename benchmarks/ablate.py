@@ -368,6 +368,17 @@ def render_table(*paths) -> str:
     return "\n".join(lines) + "\n"
 
 
+def stale_seeds(records: list[dict], method: str, task: str, variant: str, overrides: dict,
+                budget: str) -> list[int]:
+    """The seeds of ``variant``'s records whose method config (its recorded
+    ``config_digest``) is not the one ``overrides`` on today's ``budget`` give: a variant
+    is its changes from the budget, so a budget changed since leaves them another run."""
+    config = registry.get(method).config(budget, task, **overrides)
+    today = provenance.config_digest(config)
+    return sorted(r["seed"] for r in records if r["variant"] == variant
+                  and r.get("provenance", {}).get("config_digest", today) != today)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.ablate",
                                 description=__doc__.split("\n\n")[0])
@@ -403,6 +414,12 @@ def main(argv=None) -> int:
         todo = [s for s in range(args.seeds) if (name, s) not in done]
         if not todo:
             continue
+        stale = stale_seeds(records, args.method, args.task, name, {**sets, **table[name]},
+                            args.budget)
+        if stale:
+            p.error(f"{out}: variant {name!r} seeds {stale} were run with another config "
+                    f"than today's {args.budget} budget gives it (a budget changed since); "
+                    f"resuming would mix the two: write to a new --out")
         if expired():
             break
         for rec in run_seeds(args.task, args.method, name, table[name], todo, args.budget,

@@ -80,3 +80,24 @@ def test_max_minutes_stops_between_seeds_of_one_variant(tmp_path, monkeypatch):
     assert ablate.main(argv) == 0
     assert [(r["variant"], r["seed"]) for r in ablate.read_records(out)] == [
         ("baseline", 0), ("baseline", 1)]
+
+
+def test_a_variant_run_on_another_budget_is_not_resumed(tmp_path, monkeypatch, capsys):
+    """A variant is its changes from the budget: records whose config digest is not
+    today's (the budget changed since) are named, and nothing is appended to them."""
+    from dax_algos import registry
+    from dax_algos.bench import provenance
+
+    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
+    today = provenance.config_digest(registry.get("apg").config("full", "fold_cloth1"))
+    out = tmp_path / "ablate.jsonl"
+    ablate.write(out, [{**_rec("baseline", 0, 0.4), "provenance": {"config_digest": today}},
+                       {**_rec("baseline", 1, 0.5), "provenance": {"config_digest": "old"}}])
+    assert ablate.stale_seeds(ablate.read_records(out), "apg", "fold_cloth1", "baseline",
+                              {}, "full") == [1]
+    with pytest.raises(SystemExit):
+        ablate.main(["apg", "fold_cloth1", "--variants", "baseline", "--seeds", "3",
+                     "--out", str(out)])
+    assert "variant 'baseline' seeds [1] were run with another config" in (
+        capsys.readouterr().err)
+    assert len(ablate.read_records(out)) == 2
