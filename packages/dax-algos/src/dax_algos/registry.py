@@ -55,7 +55,7 @@ RL_BUDGETS = {
             # Whip-Rope: 32 x 3 steps never end an episode and give a gradient with no
             # direction; 64 whole episodes per update measured better (benchmarks.ablate
             # big_batch, benchmarks.gradient_noise), and its evaluation score falls after
-            # the first such update (benchmarks.ablate updates_1..4; README, "RL budgets")
+            # the first such update (benchmarks.ablate updates_1..3; README, "RL budgets")
             "full@whip_rope": dict(total_env_steps=3200, num_envs=64, unroll_length=50)},
     "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,

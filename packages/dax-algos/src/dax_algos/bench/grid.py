@@ -151,9 +151,9 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     longer counts); ``False`` leaves failed runs as they are. max_minutes: start no run
     after this many minutes (a run under way finishes; the reports are written; the
     rows returned say what is left); ``None``: no limit. include_stale: the reports count
-    stale rows (:func:`dax_algos.bench.summary.write_reports`; written when the grid ends
-    and, while it runs, every :data:`REFRESH_MINUTES` at the end of a run). rerun_stale: a run whose
-    row is stale (:func:`dax_algos.bench.provenance.stale_reason`: measured on other
+    stale rows (:func:`dax_algos.bench.summary.write_reports`; written when the grid
+    ends and, while it runs, every :data:`REFRESH_MINUTES` at the end of a run).
+    rerun_stale: a run whose row is stale (:func:`dax_algos.bench.provenance.stale_reason`: measured on other
     dax-tasks / dax-physics code, task spec or method config than today's) is run again;
     its new row is the one that counts (the old one stays in the file). Default: a run
     with a row is done, stale or not.
