@@ -414,14 +414,14 @@ def main(argv=None) -> int:
         todo = [s for s in range(args.seeds) if (name, s) not in done]
         if not todo:
             continue
+        if expired():
+            break
         stale = stale_seeds(records, args.method, args.task, name, {**sets, **table[name]},
                             args.budget)
         if stale:
             p.error(f"{out}: variant {name!r} seeds {stale} were run with another config "
                     f"than today's {args.budget} budget gives it (a budget changed since); "
                     f"resuming would mix the two: write to a new --out")
-        if expired():
-            break
         for rec in run_seeds(args.task, args.method, name, table[name], todo, args.budget,
                              sets, args.demos):
             records.append(rec)
@@ -431,8 +431,6 @@ def main(argv=None) -> int:
             write(out, records)
             if expired():  # between seeds too: one variant's seeds can take hours
                 break
-        if expired():
-            break
     summaries = write(out, records)
     for s in summaries:
         print(json.dumps(s))
