@@ -370,13 +370,17 @@ def render_table(*paths) -> str:
 
 def stale_seeds(records: list[dict], method: str, task: str, variant: str, overrides: dict,
                 budget: str) -> list[int]:
-    """The seeds of ``variant``'s records whose method config (its recorded
-    ``config_digest``) is not the one ``overrides`` on today's ``budget`` give: a variant
-    is its changes from the budget, so a budget changed since leaves them another run."""
+    """The seeds of ``variant``'s records measured on something else than today's code
+    builds: their method config (recorded ``config_digest``) is not the one ``overrides``
+    on today's ``budget`` give (a variant is its changes from the budget, so a budget
+    changed since leaves them another run), or their task (recorded ``task_fingerprint``:
+    the spec and the dax-tasks / dax-physics sources) is not today's. A record without
+    that provenance field is not judged on it (the oldest files predate it)."""
     config = registry.get(method).config(budget, task, **overrides)
-    today = provenance.config_digest(config)
-    return sorted(r["seed"] for r in records if r["variant"] == variant
-                  and r.get("provenance", {}).get("config_digest", today) != today)
+    today = {"config_digest": provenance.config_digest(config),
+             "task_fingerprint": provenance.task_spec(task).fingerprint()}
+    return sorted(r["seed"] for r in records if r["variant"] == variant and any(
+        r.get("provenance", {}).get(k, v) != v for k, v in today.items()))
 
 
 def main(argv=None) -> int:
@@ -420,8 +424,9 @@ def main(argv=None) -> int:
                             args.budget)
         if stale:
             p.error(f"{out}: variant {name!r} seeds {stale} were run with another config "
-                    f"than today's {args.budget} budget gives it (a budget changed since); "
-                    f"resuming would mix the two: write to a new --out")
+                    f"than today's {args.budget} budget gives it, or on other task code "
+                    f"(a budget, spec or physics changed since); resuming would mix the "
+                    f"two: write to a new --out")
         for rec in run_seeds(args.task, args.method, name, table[name], todo, args.budget,
                              sets, args.demos):
             records.append(rec)

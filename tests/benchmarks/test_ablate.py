@@ -101,3 +101,22 @@ def test_a_variant_run_on_another_budget_is_not_resumed(tmp_path, monkeypatch, c
     assert "variant 'baseline' seeds [1] were run with another config" in (
         capsys.readouterr().err)
     assert len(ablate.read_records(out)) == 2
+
+
+def test_a_variant_run_on_other_task_code_is_not_resumed(tmp_path):
+    """Records whose task fingerprint is not today's (the spec or the physics changed
+    since) are stale too; a record without provenance is judged on nothing."""
+    from dax_algos import registry
+    from dax_algos.bench import provenance
+
+    config = provenance.config_digest(registry.get("apg").config("full", "fold_cloth1"))
+    task = provenance.task_spec("fold_cloth1").fingerprint()
+    out = tmp_path / "ablate.jsonl"
+    ablate.write(out, [
+        {**_rec("baseline", 0, 0.4),
+         "provenance": {"config_digest": config, "task_fingerprint": task}},
+        {**_rec("baseline", 1, 0.5),
+         "provenance": {"config_digest": config, "task_fingerprint": "0123456789ab"}},
+        _rec("baseline", 2, 0.5)])
+    assert ablate.stale_seeds(ablate.read_records(out), "apg", "fold_cloth1", "baseline",
+                              {}, "full") == [1]
