@@ -80,7 +80,10 @@ VARIANTS = {
             "big_batch": {"num_envs": 32, "total_env_steps": 3840},
             # a budget read off the curve: Whip-Rope's heavy budget (7 updates of 4 x 10
             # steps) ends where its curve is still "too short" to read; 5x the updates
-            "long": {"total_env_steps": 1400}},
+            "long": {"total_env_steps": 1400},
+            # and twice that: on Pour-Water (100-step episodes) `long` is 3.5 training
+            # episodes per env whose final scores still rise from one to the next
+            "longer": {"total_env_steps": 2800}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
              "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},
