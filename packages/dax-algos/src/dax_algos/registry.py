@@ -56,13 +56,24 @@ RL_BUDGETS = {
             # direction; 64 whole episodes per update measured better (benchmarks.ablate
             # big_batch, benchmarks.gradient_noise), and its evaluation score falls after
             # the first such update (benchmarks.ablate updates_1..3; README, "RL budgets")
-            "full@whip_rope": dict(total_env_steps=3200, num_envs=64, unroll_length=50)},
+            "full@whip_rope": dict(total_env_steps=3200, num_envs=64, unroll_length=50),
+            # the pours (100-step episodes): 32 x 3 steps x 10 updates is 30 steps per env,
+            # never an episode's end (no curve, 2 of 3 seeds at or below the untrained
+            # policy); 8 envs x 12 steps x 20 updates ends 2.4 per env (benchmarks.ablate
+            # whole_episodes on Pour-Water; Pour-Soup by analogy, its curve in the README)
+            **{f"full@{t}": dict(total_env_steps=1920, num_envs=8, unroll_length=12)
+               for t in ("pour_water", "pour_soup")}},
     "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
                                 learning_rate=1e-3, n_eval=2),
             "full": dict(total_env_steps=480, num_envs=4, learning_rate=1e-3),
             "full_heavy": dict(total_env_steps=280, num_envs=4, window=10,
-                               learning_rate=1e-3)},
+                               learning_rate=1e-3),
+            # the pours: the heavy budget stops 70 steps into the first 100-step episode;
+            # 5x its updates (3.5 episodes per env) measured better (benchmarks.ablate long
+            # on Pour-Water; Pour-Soup by analogy, its curve in the README)
+            **{f"full@{t}": dict(total_env_steps=1400, num_envs=4, window=10,
+                                 learning_rate=1e-3) for t in ("pour_water", "pour_soup")}},
     "shac": {"quick": dict(total_env_steps=48, num_envs=4, critic_minibatches=2, n_eval=4),
              "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
                                  critic_minibatches=2, n_eval=2),
