@@ -377,13 +377,14 @@ def stale_seeds(records: list[dict], method: str, task: str, variant: str, overr
     builds: their method config (recorded ``config_digest``) is not the one ``overrides``
     on today's ``budget`` give (a variant is its changes from the budget, so a budget
     changed since leaves them another run), or their task (recorded ``task_fingerprint``:
-    the spec and the dax-tasks / dax-physics sources) is not today's. A record without
-    that provenance field is not judged on it (the oldest files predate it)."""
-    config = registry.get(method).config(budget, task, **overrides)
-    today = {"config_digest": provenance.config_digest(config),
-             "task_fingerprint": provenance.task_spec(task).fingerprint()}
-    return sorted(r["seed"] for r in records if r["variant"] == variant and any(
-        r.get("provenance", {}).get(k, v) != v for k, v in today.items()))
+    the spec and the dax-tasks / dax-physics sources) is not today's: the runner's rule
+    (:func:`dax_algos.bench.provenance.stale_reason`), except that a record without
+    provenance is not stale (the oldest files predate it)."""
+    today = provenance.Today(method_overrides={method: overrides})
+    return sorted(r["seed"] for r in records if r["variant"] == variant
+                  and provenance.has_provenance(prov := r.get("provenance", {}))
+                  and provenance.stale_reason(
+                      {**r, **prov, "method": method, "task": task, "budget": budget}, today))
 
 
 def main(argv=None) -> int:

@@ -153,10 +153,11 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     rows returned say what is left); ``None``: no limit. include_stale: the reports count
     stale rows (:func:`dax_algos.bench.summary.write_reports`; written when the grid
     ends and, while it runs, every :data:`REFRESH_MINUTES` at the end of a run).
-    rerun_stale: a run whose row is stale (:func:`dax_algos.bench.provenance.
-    stale_reason`: measured on other dax-tasks / dax-physics code, task spec or method
-    config than today's) is run again; its new row is the one that counts (the old one
-    stays in the file). Default: a run with a row is done, stale or not.
+    rerun_stale: a run whose row is stale
+    (:func:`dax_algos.bench.provenance.stale_reason`: measured on other dax-tasks /
+    dax-physics code, task spec or method config than today's) is run again; its new row
+    is the one that counts (the old one stays in the file). Default: a run with a row is
+    done, stale or not.
 
     backend: ``"local"`` (this process) or ``"ray"``: every (task, method, seed) is one Ray
     task (:func:`dax_algos.bench.backends.run_ray`) on the cluster at ``ray_address`` (default:
