@@ -99,6 +99,9 @@ VARIANTS = {
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
+            # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
+            # end too few episodes to split its curve in fifths (budgets table: too short)
+            "long": {"total_env_steps": 9216},
             # fewer envs, longer unrolls: every env finishes several episodes in training
             "whole_episodes": {"num_envs": 8, "unroll_length": 12, "total_env_steps": 1920},
             # and a discount that sees the episode's end (0.9 per step is a 10-step horizon;
