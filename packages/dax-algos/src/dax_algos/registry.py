@@ -74,9 +74,10 @@ RL_BUDGETS = {
             # on Pour-Water; Pour-Soup by analogy, its curve in the README)
             **{f"full@{t}": dict(total_env_steps=1400, num_envs=4, window=10,
                                  learning_rate=1e-3) for t in ("pour_water", "pour_soup")},
-            # Push-Rope: the summed r_gt + aux spoils the pushed starts (0.40 against the
-            # untrained 0.56); ascending the final step's r_gt measured better
-            # (benchmarks.ablate final_reward), still not above the untrained policy
+            # Push-Rope: ascending the summed r_gt + aux spoils the starts the policy
+            # pushes; the final step's r_gt measured better (benchmarks.ablate
+            # final_reward; README, the Push-Rope ablations), still not above the
+            # untrained policy
             "full@push_rope": dict(total_env_steps=280, num_envs=4, window=10,
                                    learning_rate=1e-3, objective="final")},
     "shac": {"quick": dict(total_env_steps=48, num_envs=4, critic_minibatches=2, n_eval=4),
