@@ -49,7 +49,7 @@ import numpy as np
 import dax_tasks
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
-from dax_algos.bench import execute, provenance, report
+from dax_algos.bench import execute, provenance, report, rundir
 from dax_algos.learner import untrained_key
 from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
@@ -202,10 +202,12 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
     compile_s = time.perf_counter() - t0
     score = make_scorer(env, method, config)
     prov = provenance.of_run(env, config)  # what the runner's rows record of the code
+    machine = rundir.cpu_info()  # training repeats to the bit only on equal CPU flags
     for seed in seeds:
         rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
                "changes": changes, "sets": sets, "seed": seed,
-               "load_1min": round(os.getloadavg()[0], 2), "provenance": prov}
+               "load_1min": round(os.getloadavg()[0], 2), "provenance": prov,
+               "machine": machine}
         t0 = time.perf_counter()
         out = jax.device_get(jax.block_until_ready(
             compiled(jax.random.PRNGKey(seed), params, *data)))

@@ -157,3 +157,23 @@ def test_stale_reasons_are_counted_by_kind_a_row_under_each_of_its_reasons():
         "the method's config changed": 1,
         "provenance unknown or not checkable": 1}
     assert report.stale_kinds([]) == {}
+
+
+def test_cpu_info_digests_the_first_processors_flags_in_any_order(tmp_path):
+    """Two machines that list the same instruction-set flags in another order get the same
+    digest; one flag more changes it; the model is read from the first processor; an
+    unreadable file gives ``"unknown"`` flags rather than an error."""
+    from dax_algos.bench import rundir
+
+    def info(flags: str, name: str) -> dict:
+        path = tmp_path / name
+        path.write_text(f"processor\t: 0\nmodel name\t: Xeon A\nflags\t\t: {flags}\n\n"
+                        f"processor\t: 1\nmodel name\t: other\nflags\t\t: sse2\n")
+        return rundir.cpu_info(path)
+
+    a = info("sse2 avx2 avx512f", "a")
+    assert a["cpu_model"] == "Xeon A" and re.fullmatch(r"[0-9a-f]{12}", a["cpu_flags"])
+    assert info("avx512f sse2  avx2", "b")["cpu_flags"] == a["cpu_flags"]
+    assert info("sse2 avx2", "c")["cpu_flags"] != a["cpu_flags"]
+    assert rundir.cpu_info(tmp_path / "missing")["cpu_flags"] == "unknown"
+    assert {"cpu_model", "cpu_flags"} <= set(rundir.machine_info())

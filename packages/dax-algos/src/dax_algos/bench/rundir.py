@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import hashlib
 import importlib.metadata
 import json
 import os
@@ -111,10 +112,35 @@ def read_run_file(out: Path) -> dict:
     return old
 
 
+def cpu_info(cpuinfo: str | Path = "/proc/cpuinfo") -> dict:
+    """The host CPU: ``{"cpu_model": str, "cpu_flags": str}``, the flags as a 12-hex-digit
+    digest of the sorted instruction-set flags of the first processor in ``cpuinfo``.
+
+    XLA compiles CPU code for the host's instruction set, so training (a chaotic
+    computation) repeats to the bit on one machine but not always across machines whose
+    flags differ; two rows with different ``cpu_flags`` need not agree to the bit. Where
+    ``cpuinfo`` cannot be read (not Linux) the model is :func:`platform.processor` and the
+    flags ``"unknown"``."""
+    try:
+        text = Path(cpuinfo).read_text()
+    except OSError:
+        return {"cpu_model": platform.processor() or "unknown", "cpu_flags": "unknown"}
+    fields = {}
+    for line in text.split("\n\n")[0].splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            fields.setdefault(key.strip(), value.strip())
+    flags = " ".join(sorted(fields.get("flags", "").split()))
+    return {"cpu_model": fields.get("model name") or platform.processor() or "unknown",
+            "cpu_flags": hashlib.sha256(flags.encode()).hexdigest()[:12] if flags
+            else "unknown"}
+
+
 def machine_info() -> dict:
-    """The machine a run ran on: platform, Python, CPU count, JAX backend and devices."""
+    """The machine a run ran on: platform, Python, CPU count, model and instruction-set
+    digest (:func:`cpu_info`), JAX backend and devices."""
     return {"platform": platform.platform(), "python": platform.python_version(),
-            "cpu_count": os.cpu_count(), "jax_backend": jax.default_backend(),
+            "cpu_count": os.cpu_count(), **cpu_info(), "jax_backend": jax.default_backend(),
             "jax_devices": [str(d) for d in jax.devices()]}
 
 
