@@ -202,7 +202,7 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
     compile_s = time.perf_counter() - t0
     score = make_scorer(env, method, config)
     prov = provenance.of_run(env, config)  # what the runner's rows record of the code
-    machine = rundir.cpu_info()  # training repeats to the bit only on equal CPU flags
+    machine = rundir.cpu_info()  # training repeats to the bit only on one machine class
     for seed in seeds:
         rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
                "changes": changes, "sets": sets, "seed": seed,

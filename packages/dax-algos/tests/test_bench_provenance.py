@@ -159,21 +159,22 @@ def test_stale_reasons_are_counted_by_kind_a_row_under_each_of_its_reasons():
     assert report.stale_kinds([]) == {}
 
 
-def test_cpu_info_digests_the_first_processors_flags_in_any_order(tmp_path):
-    """Two machines that list the same instruction-set flags in another order get the same
-    digest; one flag more changes it; the model is read from the first processor; an
-    unreadable file gives ``"unknown"`` flags rather than an error."""
+def test_cpu_info_reads_the_first_processors_isa_features_and_the_xla_cap(tmp_path,
+                                                                          monkeypatch):
+    """The model and the instruction-set features XLA compiles for are read from the first
+    processor, in :data:`rundir.ISA_FEATURES` order whatever the file's order (flags that do
+    not change XLA's code are left out); ``--xla_cpu_max_isa`` in ``XLA_FLAGS`` is recorded
+    as the cap; an unreadable file gives ``["unknown"]`` features rather than an error."""
     from dax_algos.bench import rundir
 
-    def info(flags: str, name: str) -> dict:
-        path = tmp_path / name
-        path.write_text(f"processor\t: 0\nmodel name\t: Xeon A\nflags\t\t: {flags}\n\n"
-                        f"processor\t: 1\nmodel name\t: other\nflags\t\t: sse2\n")
-        return rundir.cpu_info(path)
-
-    a = info("sse2 avx2 avx512f", "a")
-    assert a["cpu_model"] == "Xeon A" and re.fullmatch(r"[0-9a-f]{12}", a["cpu_flags"])
-    assert info("avx512f sse2  avx2", "b")["cpu_flags"] == a["cpu_flags"]
-    assert info("sse2 avx2", "c")["cpu_flags"] != a["cpu_flags"]
-    assert rundir.cpu_info(tmp_path / "missing")["cpu_flags"] == "unknown"
-    assert {"cpu_model", "cpu_flags"} <= set(rundir.machine_info())
+    path = tmp_path / "cpuinfo"
+    path.write_text("processor\t: 0\nmodel name\t: Xeon A\nflags\t\t: fpu avx512f sse2 avx2"
+                    " fma\n\nprocessor\t: 1\nmodel name\t: other\nflags\t\t: sse4_1\n")
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    assert rundir.cpu_info(path) == {"cpu_model": "Xeon A",
+                                     "cpu_features": ["avx2", "fma", "avx512f"],
+                                     "xla_max_isa": None}
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX2 --xla_foo=1")
+    assert rundir.cpu_info(path)["xla_max_isa"] == "AVX2"
+    assert rundir.cpu_info(tmp_path / "missing")["cpu_features"] == ["unknown"]
+    assert {"cpu_model", "cpu_features", "xla_max_isa"} <= set(rundir.machine_info())

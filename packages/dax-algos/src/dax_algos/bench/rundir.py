@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import hashlib
 import importlib.metadata
 import json
 import os
 import platform
+import re
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -112,33 +112,41 @@ def read_run_file(out: Path) -> dict:
     return old
 
 
-def cpu_info(cpuinfo: str | Path = "/proc/cpuinfo") -> dict:
-    """The host CPU: ``{"cpu_model": str, "cpu_flags": str}``, the flags as a 12-hex-digit
-    digest of the sorted instruction-set flags of the first processor in ``cpuinfo``.
+#: The CPU features that change what XLA's CPU compiler emits (vector width, fused
+#: multiply-add, half-precision conversions); the same list dax-tasks' trajectory fixtures
+#: record as their machine class.
+ISA_FEATURES = ("sse4_1", "sse4_2", "avx", "avx2", "fma", "f16c", "avx512f", "avx512dq",
+                "avx512bw", "avx512vl", "avx512_vnni", "avx512_bf16", "avx512_fp16",
+                "amx_tile", "asimd", "asimdhp", "sve", "sve2", "fphp")
 
-    XLA compiles CPU code for the host's instruction set, so training (a chaotic
-    computation) repeats to the bit on one machine but not always across machines whose
-    flags differ; two rows with different ``cpu_flags`` need not agree to the bit. Where
-    ``cpuinfo`` cannot be read (not Linux) the model is :func:`platform.processor` and the
-    flags ``"unknown"``."""
+
+def cpu_info(cpuinfo: str | Path = "/proc/cpuinfo") -> dict:
+    """The host CPU as XLA sees it: ``{"cpu_model": str, "cpu_features": [str],
+    "xla_max_isa": str | None}``: the model name and the :data:`ISA_FEATURES` of the first
+    processor in ``cpuinfo`` (``flags`` on x86-64, ``Features`` on arm64), and the cap
+    ``--xla_cpu_max_isa`` in ``XLA_FLAGS`` puts on them.
+
+    XLA compiles CPU code for these features, so training (a chaotic computation) repeats
+    to the bit on one machine class but not across classes: two rows with different
+    features need not agree to the bit. Where ``cpuinfo`` cannot be read (not Linux) the
+    model is :func:`platform.processor` and the features ``["unknown"]``."""
+    cap = re.search(r"--xla_cpu_max_isa=(\S+)", os.environ.get("XLA_FLAGS", ""))
     try:
-        text = Path(cpuinfo).read_text()
+        first = Path(cpuinfo).read_text().split("\n\n")[0]
     except OSError:
-        return {"cpu_model": platform.processor() or "unknown", "cpu_flags": "unknown"}
-    fields = {}
-    for line in text.split("\n\n")[0].splitlines():
-        key, sep, value = line.partition(":")
-        if sep:
-            fields.setdefault(key.strip(), value.strip())
-    flags = " ".join(sorted(fields.get("flags", "").split()))
-    return {"cpu_model": fields.get("model name") or platform.processor() or "unknown",
-            "cpu_flags": hashlib.sha256(flags.encode()).hexdigest()[:12] if flags
-            else "unknown"}
+        return {"cpu_model": platform.processor() or "unknown", "cpu_features": ["unknown"],
+                "xla_max_isa": cap.group(1) if cap else None}
+    model = re.search(r"^(?:model name|CPU part)\s*:\s*(.*)$", first, re.M)
+    flags = re.search(r"^(?:flags|Features)\s*:(.*)$", first, re.M)
+    have = set(flags.group(1).split()) if flags else set()
+    return {"cpu_model": model.group(1).strip() if model else platform.processor() or "unknown",
+            "cpu_features": [f for f in ISA_FEATURES if f in have],
+            "xla_max_isa": cap.group(1) if cap else None}
 
 
 def machine_info() -> dict:
-    """The machine a run ran on: platform, Python, CPU count, model and instruction-set
-    digest (:func:`cpu_info`), JAX backend and devices."""
+    """The machine a run ran on: platform, Python, CPU count, model and the instruction-set
+    features XLA compiles for (:func:`cpu_info`), JAX backend and devices."""
     return {"platform": platform.platform(), "python": platform.python_version(),
             "cpu_count": os.cpu_count(), **cpu_info(), "jax_backend": jax.default_backend(),
             "jax_devices": [str(d) for d in jax.devices()]}
