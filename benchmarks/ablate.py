@@ -94,7 +94,10 @@ VARIANTS = {
              # Whip-Rope's heavy budget (8 updates of 4 x 10 steps), 5x the updates
              "long": {"total_env_steps": 1600},
              # and a smaller actor step (the raw gradient norm grows as `long`'s curve falls)
-             "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4}},
+             "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4},
+             # a tenth of the actor step: where the gradient's direction is mostly noise
+             # (Push-Rope), a clipped Adam step of full size is a random walk (hypothesis 2)
+             "lr_low": {"actor_learning_rate": 1e-4}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
