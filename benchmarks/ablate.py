@@ -97,7 +97,11 @@ VARIANTS = {
              "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4},
              # a tenth of the actor step: where the gradient's direction is mostly noise
              # (Push-Rope), a clipped Adam step of full size is a random walk (hypothesis 2)
-             "lr_low": {"actor_learning_rate": 1e-4}},
+             "lr_low": {"actor_learning_rate": 1e-4},
+             # training rollouts near the deterministic policy that is scored (std 0.05
+             # pre-tanh instead of 0.37): APG, deterministic, learns Pour-Water at the same
+             # window and a smaller budget, SHAC barely
+             "std_low": {"init_log_std": -3.0}},
     "ild": {"baseline": {}, "raw_obs": {"normalize_obs": False},
             "aligned": {"align": "start"}, "no_clip": {"max_grad_norm": None},
             "lr_low": {"learning_rate": 1e-4}},
