@@ -93,7 +93,12 @@ RL_BUDGETS = {
              # (pre-tanh std 0.05, not 0.37) measured better (benchmarks.ablate std_low
              # on Pour-Water; Pour-Soup by analogy)
              **{f"full@{t}": {**_SHAC_FULL_HEAVY, "init_log_std": -3.0}
-                for t in ("pour_water", "pour_soup")}},
+                for t in ("pour_water", "pour_soup")},
+             # Push-Rope: the budget's step walks the policy into pushes that spoil the
+             # starts it pushes (its first gradient is mostly noise); a tenth of the actor
+             # step leaves the policy where it started, which measured better
+             # (benchmarks.ablate lr_low; README): it does not learn the task
+             "full@push_rope": {**_SHAC_FULL_HEAVY, "actor_learning_rate": 1e-4}},
 }
 
 #: Training budgets of the imitation methods: Transporter in Adam steps on the 10
