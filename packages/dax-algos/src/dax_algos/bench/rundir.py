@@ -134,13 +134,13 @@ def cpu_info(cpuinfo: str | Path = "/proc/cpuinfo") -> dict:
     try:
         first = Path(cpuinfo).read_text().split("\n\n")[0]
     except OSError:
-        return {"cpu_model": platform.processor() or "unknown", "cpu_features": ["unknown"],
-                "xla_max_isa": cap.group(1) if cap else None}
-    model = re.search(r"^(?:model name|CPU part)\s*:\s*(.*)$", first, re.M)
-    flags = re.search(r"^(?:flags|Features)\s*:(.*)$", first, re.M)
+        first = None
+    model = first and re.search(r"^(?:model name|CPU part)\s*:\s*(.*)$", first, re.M)
+    flags = first and re.search(r"^(?:flags|Features)\s*:(.*)$", first, re.M)
     have = set(flags.group(1).split()) if flags else set()
     return {"cpu_model": model.group(1).strip() if model else platform.processor() or "unknown",
-            "cpu_features": [f for f in ISA_FEATURES if f in have],
+            "cpu_features": ["unknown"] if first is None
+            else [f for f in ISA_FEATURES if f in have],
             "xla_max_isa": cap.group(1) if cap else None}
 
 
