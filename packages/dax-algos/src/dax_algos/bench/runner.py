@@ -7,14 +7,17 @@ The ``dax-bench`` command::
                   [--max-minutes N] [--no-retry-failed] [--include-stale]
                   [--rerun-stale]
     dax-bench report --out DIR [--budget quick|full] [--include-stale] [--markdown]
+    dax-bench merge --into DIR SRC [SRC ...] [--lock-timeout SECONDS]
     dax-bench list
 
 ``run`` runs the grid (:func:`dax_algos.bench.grid.run_grid`: resumable, failed runs
 retried, one results row per run, :mod:`dax_algos.bench.rows`; a preset names a grid,
 :mod:`dax_algos.bench.presets`), ``report`` rewrites a directory's reports and results
 page (:func:`dax_algos.bench.summary.report_dir`) or prints its score table as Markdown,
-``list`` lists the tasks, methods and presets. A bad argument, output directory or
-results file is one line ``dax-bench: error: ...`` and exit status 2; a failed run of the
+``merge`` gathers the output directories of a grid run in pieces (on several machines)
+into one (:func:`dax_algos.bench.merge.merge_dirs`) and rewrites its reports, ``list``
+lists the tasks, methods and presets. A bad argument, output directory or results file
+is one line ``dax-bench: error: ...`` and exit status 2; a failed run of the
 grid, one line naming it and exit status 1; runs left when ``--max-minutes`` ran out, one
 line and exit status 3.
 """
@@ -29,7 +32,7 @@ from pathlib import Path
 import dax_tasks
 
 from .. import method, registry
-from . import grid, page, presets, summary
+from . import grid, merge, page, presets, summary
 from .execute import use_default_compilation_cache
 
 
@@ -123,6 +126,13 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--markdown", action="store_true",
                      help="print the score table as Markdown (what a README holds) "
                           "instead of writing the reports")
+    mer = sub.add_parser("merge", help="add to one output directory the runs it lacks from "
+                                       "others (pieces of one grid run elsewhere)")
+    mer.add_argument("--into", required=True, help="the output directory merged into")
+    mer.add_argument("sources", nargs="+", metavar="SRC", help="output directories of "
+                                                               "pieces of the same grid")
+    mer.add_argument("--lock-timeout", type=_seconds, default=0.0, metavar="SECONDS",
+                     help="wait up to this long for a run writing --into (default 0)")
     sub.add_parser("list", help="list the tasks, methods and presets")
     return p
 
@@ -155,7 +165,7 @@ def main(argv=None) -> int:
         print("presets:", "; ".join(f"{k} ({v.what})" for k, v in presets.PRESETS.items()))
         return 0
     use_default_compilation_cache()
-    out = args.out
+    out = args.into if args.command == "merge" else args.out
     try:
         if args.command == "report":
             if args.markdown:
@@ -164,6 +174,11 @@ def main(argv=None) -> int:
                 return 0
             index = summary.report_dir(args.out, args.budget, args.include_stale)
             print(index.resolve())
+            return 0
+        if args.command == "merge":
+            done = merge.merge_dirs(args.into, args.sources, args.lock_timeout)
+            print(done.line(Path(args.into)))
+            print(summary.report_dir(args.into).resolve())
             return 0
         command = shlex.join(["dax-bench", *(sys.argv[1:] if argv is None else argv)])
         g = _grid_args(args)
