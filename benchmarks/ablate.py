@@ -109,6 +109,10 @@ VARIANTS = {
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
             # end too few episodes to split its curve in fifths (budgets table: too short)
             "long": {"total_env_steps": 9216},
+            # the same 12 updates on 4x the envs: on the cloth the first gradient of the
+            # budget's 192 samples is noise (benchmarks.gradient_noise, Fold-Cloth-1 SNR
+            # 0.11), and more updates of it (long) stay flat
+            "batch_256": {"num_envs": 256, "total_env_steps": 9216},
             # fewer envs, longer unrolls: every env finishes several episodes in training
             "whole_episodes": {"num_envs": 8, "unroll_length": 12, "total_env_steps": 1920},
             # and a discount that sees the episode's end (0.9 per step is a 10-step horizon;
