@@ -118,6 +118,9 @@ FILE_KINDS = {
                        "the signal-to-noise ratio of a learner's first policy gradient "
                        "across independent batches (a benchmarks.gradient_noise JSONL "
                        "file)", 1),
+    "planner_objective": ("benchmarks.planner_objective", "render_table",
+                          "the planners' score beside what they optimise, per step of the "
+                          "grid's episodes (a benchmarks.planner_objective JSONL file)", 1),
     "ild_weighting": ("benchmarks.ild_weighting", "render_table",
                       "ILD's score per state-distance weighting (a benchmarks.ild_weighting "
                       "JSONL file)", 1),
