@@ -1,8 +1,9 @@
 """What the planners optimise against what they are scored on (JSON lines).
 
 A model-predictive planner picks each action by the planning objective over its own short
-horizon (``CEMConfig.objective``: the task reward r_gt + aux after the plan's last step,
-or their sum); the episode is scored by the final step's r_gt alone. diff-CEM-MPC refines
+horizon (``CEMConfig.objective``: the env's reward after the plan's last step, or the sum
+over its steps; the reward is r_gt + aux_weight · aux, and the planners run at the default
+weight 0, so it is r_gt); the episode is scored by the final step's r_gt alone. diff-CEM-MPC refines
 CEM's best plan by gradient ascent on that objective and keeps the better of the two, so
 from the same state it never plans worse than CEM by the objective. Where it still scores
 worse (the finding "diff-CEM-MPC >= CEM-MPC"), the question is whether it won what it
@@ -37,8 +38,8 @@ METHODS = ("cem_mpc", "diff_cem_mpc")
 def measure(env, task: str, method: str, seed: int, budget: str = "full",
             overrides: dict | None = None, compiled=None) -> tuple[dict, object]:
     """``(record, compiled episode)`` of one planner episode: ``score`` (final r_gt),
-    per step ``objective`` (the chosen plan's planning value), ``reward`` (executed, r_gt +
-    aux) and ``r_gt``; their means. ``compiled``: the episode compiled by an earlier call
+    per step ``objective`` (the chosen plan's planning value), ``reward`` (the env's reward
+    of the executed step) and ``r_gt``; their means. ``compiled``: the episode compiled by an earlier call
     for the same method (reused)."""
     config = registry.get(method).config(budget, task, **(overrides or {}))
     params = env.default_params
@@ -68,13 +69,15 @@ def _mean_se(xs) -> str:
 
 def render_table(path) -> str:
     """Per task and method: the final score, the mean executed reward (what the planning
-    objective rewards, step by step) and the mean chosen-plan objective, mean ± SE over
-    seeds; and each method against the first (paired by seed)."""
+    objective rewards, step by step), the mean chosen-plan objective and the mean r_gt over
+    the episode's first and last fifth, mean ± SE over seeds; and each method against the
+    first (paired by seed)."""
     from benchmarks._report import file_date, load_range, read_result
 
     path, recs = read_result(path)
     out = ["| task | method | seeds | final r_gt (score) | mean executed reward | mean planned "
-           "objective | mean r_gt over the episode |", "|---|---|---|---|---|---|---|"]
+           "objective | r_gt, first fifth of the steps | r_gt, last fifth |",
+           "|---|---|---|---|---|---|---|---|"]
     groups: dict = {}
     for r in recs:
         groups.setdefault((r["task"], r["method"]), {})[r["seed"]] = r
@@ -83,7 +86,8 @@ def render_table(path) -> str:
         out.append(f"| {task} | {method} | {len(rs)} | {_mean_se([r['score'] for r in rs])} | "
                    f"{_mean_se([r['reward_mean'] for r in rs])} | "
                    f"{_mean_se([r['objective_mean'] for r in rs])} | "
-                   f"{_mean_se([r['r_gt_mean'] for r in rs])} |")
+                   f"{_mean_se([_fifth(r, 0) for r in rs])} | "
+                   f"{_mean_se([_fifth(r, -1) for r in rs])} |")
     pairs = []
     tasks = dict.fromkeys(t for t, _ in groups)
     for task in tasks:
@@ -94,19 +98,30 @@ def render_table(path) -> str:
             if len(seeds) < 2:
                 continue
             d = {k: [b[s][k] - a[s][k] for s in seeds] for k in ("score", "reward_mean")}
+            early = [_fifth(b[s], 0) - _fifth(a[s], 0) for s in seeds]
+            late = [_fifth(b[s], -1) - _fifth(a[s], -1) for s in seeds]
             pairs.append(f"{task}: {m} − {methods[0]} ({len(seeds)} seeds): score "
                          f"{_signed(d['score'])}, mean executed reward "
-                         f"{_signed(d['reward_mean'])}")
+                         f"{_signed(d['reward_mean'])}, r_gt over the first fifth "
+                         f"{_signed(early)}, over the last fifth {_signed(late)}")
     loads = load_range(r.get("load_1min") for r in recs)
     devices = sorted({r.get("device", "cpu:cpu") for r in recs})
     out += ["", "Each row: the grid's episode of that method and seed (the registry's config, "
-            "`PRNGKey(seed)`), re-run with its per-step record. Executed reward: r_gt + aux "
-            "of each executed step, the quantity the planning objective scores over the plan's "
+            "`PRNGKey(seed)`), re-run with its per-step record. Executed reward: the env's "
+            "reward of each executed step (r_gt + aux_weight · aux, at the default weight 0: "
+            "r_gt), the quantity the planning objective scores at the end of the plan's "
             "horizon; planned objective: the chosen plan's value at each step. "
             + ("Paired by seed: " + "; ".join(pairs) + ". " if pairs else "")
             + f"{', '.join(devices)}, 1-minute load {loads}; `{path.as_posix()}` "
             f"({file_date(path) or 'date not recorded'})."]
     return "\n".join(out) + "\n"
+
+
+def _fifth(rec, which: int) -> float:
+    """The mean r_gt over the first (``which`` 0) or last (-1) fifth of the episode's steps."""
+    r = np.asarray(rec["r_gt"], np.float64)
+    n = max(1, len(r) // 5)
+    return float(r[:n].mean() if which == 0 else r[-n:].mean())
 
 
 def _signed(xs) -> str:
