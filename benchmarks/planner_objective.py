@@ -39,8 +39,8 @@ def measure(env, task: str, method: str, seed: int, budget: str = "full",
             overrides: dict | None = None, compiled=None) -> tuple[dict, object]:
     """``(record, compiled episode)`` of one planner episode: ``score`` (final r_gt),
     per step ``objective`` (the chosen plan's planning value), ``reward`` (the env's reward
-    of the executed step) and ``r_gt``; their means. ``compiled``: the episode compiled by an earlier call
-    for the same method (reused)."""
+    of the executed step) and ``r_gt``; their means. ``compiled``: the episode compiled by
+    an earlier call for the same method (reused)."""
     config = registry.get(method).config(budget, task, **(overrides or {}))
     params = env.default_params
     if compiled is None:
