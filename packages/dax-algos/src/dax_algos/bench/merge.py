@@ -19,7 +19,7 @@ directory, :func:`merge_dirs` adds to ``into``:
 
 The sources must have been made with the same task and method overrides and in the same
 precision as ``into`` (the checks ``dax-bench run`` makes), and no run may be writing
-``into`` (its lock). The reports and the page are written again afterwards
+``into`` (its lock). ``dax-bench merge`` then writes the reports and the page again
 (:func:`dax_algos.bench.summary.report_dir`).
 """
 
@@ -27,9 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
-import tempfile
 from pathlib import Path
 
 from dax_tasks.io import atomic_write, exclusive
@@ -57,17 +55,10 @@ class Merged:
 
 
 def _copy(src: Path, dst: Path) -> None:
-    """Copy one file so that ``dst`` is never half-written (a temporary file beside it,
-    then renamed)."""
+    """Copy one file so that ``dst`` is never half-written (:func:`atomic_write`)."""
     dst.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        shutil.copyfile(src, tmp)
-        os.replace(tmp, dst)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with open(src, "rb") as f:
+        atomic_write(dst, lambda out: shutil.copyfileobj(f, out))
 
 
 def _run_files(source: Path, task: str, method: str, seed: int) -> list[Path]:
