@@ -31,6 +31,7 @@ import numpy as np
 
 import dax_tasks
 from dax_algos import registry
+from dax_algos.bench import csvlog
 
 METHODS = ("cem_mpc", "diff_cem_mpc")
 
@@ -144,7 +145,9 @@ def main(argv=None) -> int:
     out = Path(args.out)
     done = set()
     if out.exists():
-        done = {(r["method"], r["seed"]) for r in map(json.loads, out.read_text().splitlines())
+        from benchmarks.ablate import read_records  # JSON lines, a torn last line dropped
+
+        done = {(r["method"], r["seed"]) for r in read_records(out)
                 if r.get("task") == args.task}
     env = dax_tasks.make(args.task)
     for m in methods:
@@ -153,10 +156,7 @@ def main(argv=None) -> int:
             if (m, s) in done:
                 continue
             rec, compiled = measure(env, args.task, m, s, args.budget, compiled=compiled)
-            with open(out, "a", encoding="utf-8") as f:
-                f.write(json.dumps(rec) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
+            csvlog.append(out, json.dumps(rec) + "\n")  # one fsynced write, torn line cut
             print(f"{m} seed {s}: score {rec['score']:.4f}, mean reward "
                   f"{rec['reward_mean']:.4f}, mean objective {rec['objective_mean']:.4f} "
                   f"({rec['wall_s']} s)", flush=True)
