@@ -31,7 +31,7 @@ import numpy as np
 
 import dax_tasks
 from dax_algos import registry
-from dax_algos.bench import csvlog
+from dax_algos.bench import csvlog, report
 
 METHODS = ("cem_mpc", "diff_cem_mpc")
 
@@ -63,9 +63,8 @@ def measure(env, task: str, method: str, seed: int, budget: str = "full",
 
 
 def _mean_se(xs) -> str:
-    xs = np.asarray(xs, np.float64)
-    se = xs.std(ddof=1) / np.sqrt(len(xs)) if len(xs) > 1 else float("nan")
-    return f"{xs.mean():.3f} ± {se:.3f}" if len(xs) > 1 else f"{xs.mean():.3f} (n=1)"
+    mean, se = report.mean_se(xs)
+    return f"{mean:.3f} ± {se:.3f}" if len(xs) > 1 else f"{mean:.3f} (n=1)"
 
 
 def render_table(path) -> str:
@@ -126,8 +125,8 @@ def _fifth(rec, which: int) -> float:
 
 
 def _signed(xs) -> str:
-    xs = np.asarray(xs, np.float64)
-    return f"{xs.mean():+.3f} ± {xs.std(ddof=1) / np.sqrt(len(xs)):.3f}"
+    mean, se = report.mean_se(xs)
+    return f"{mean:+.3f} ± {se:.3f}"
 
 
 def main(argv=None) -> int:

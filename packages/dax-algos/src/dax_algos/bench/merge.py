@@ -82,13 +82,13 @@ def _check_source(into: Path, source: Path, into_run: dict, into_rows: list) -> 
         raise ValueError(f"{source}: has no results.csv (not a dax-bench output directory)")
     rows = read_rows(csv_path)
     run = rundir.read_run_file(source)
-    for field in ("task_overrides", "method_overrides"):
-        mine, theirs = into_run.get(field, {}), run.get(field, {})
-        if (into_run or into_rows) and mine != theirs:
-            raise ValueError(
-                f"{source}: made with other {field.replace('_', ' ')} than {into} "
-                f"({json.dumps(theirs, sort_keys=True)[:200]}, there "
-                f"{json.dumps(mine, sort_keys=True)[:200]}); merge only pieces of one grid")
+    field = rundir.other_overrides(into_run, bool(into_rows), run)
+    if field:
+        raise ValueError(
+            f"{source}: made with other {field.replace('_', ' ')} than {into} "
+            f"({json.dumps(run.get(field, {}), sort_keys=True)[:200]}, there "
+            f"{json.dumps(into_run.get(field, {}), sort_keys=True)[:200]}); merge only "
+            f"pieces of one grid")
     precisions = {r["precision"] for r in into_rows + rows if r["precision"]}
     if len(precisions) > 1:
         raise ValueError(f"{source}: its rows and those of {into} were computed in "
@@ -143,7 +143,6 @@ def _add_invocations(into: Path, into_run: dict, run: dict) -> None:
     extra = [i for i in run.get("invocations", []) if i not in mine]
     if not extra and into_run:
         return
-    merged = {"task_overrides": run.get("task_overrides", {}),
-              "method_overrides": run.get("method_overrides", {}), **into_run,
+    merged = {**{k: run.get(k, {}) for k in rundir.OVERRIDES}, **into_run,
               "invocations": mine + extra}
     atomic_write(into / rundir.RUN_FILE, json.dumps(merged, indent=1, sort_keys=True) + "\n")

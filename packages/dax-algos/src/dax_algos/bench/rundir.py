@@ -163,6 +163,20 @@ def package_versions() -> dict:
     return out
 
 
+#: the run-file fields that must agree for results to share an output directory
+OVERRIDES = ("task_overrides", "method_overrides")
+
+
+def other_overrides(recorded: dict, has_rows: bool, config: dict) -> str | None:
+    """The first of :data:`OVERRIDES` in which ``config`` differs from what an output
+    directory recorded (``recorded``: its run file, ``{}`` if none; a directory with rows
+    and no run file holds runs made without overrides); ``None`` when they agree or the
+    directory holds nothing yet."""
+    if not recorded and not has_rows:
+        return None
+    return next((k for k in OVERRIDES if recorded.get(k, {}) != config.get(k, {})), None)
+
+
 def record_run(out: Path, rows: list, config: dict, command: str) -> None:
     """Refuse to add to ``out`` results made with other task or method overrides (they
     would be mixed with, or silently stand in for, this run's); record them on first
@@ -173,15 +187,15 @@ def record_run(out: Path, rows: list, config: dict, command: str) -> None:
     ``out``."""
     path = out / RUN_FILE
     old = read_run_file(out)
+    key = other_overrides(old, bool(rows), config)
+    if key:
+        raise ValueError(
+            f"{out}: holds results made with other {key.replace('_', ' ')} "
+            f"({json.dumps(old.get(key, {}), sort_keys=True)[:200]}, now "
+            f"{json.dumps(config[key], sort_keys=True)[:200]}); use another --out "
+            f"directory")
     if not old and rows:  # results from before run files: runs without overrides
-        old = {"task_overrides": {}, "method_overrides": {}}
-    for key in ("task_overrides", "method_overrides"):
-        if old and old.get(key, {}) != config[key]:
-            raise ValueError(
-                f"{out}: holds results made with other {key.replace('_', ' ')} "
-                f"({json.dumps(old.get(key, {}), sort_keys=True)[:200]}, now "
-                f"{json.dumps(config[key], sort_keys=True)[:200]}); use another --out "
-                f"directory")
+        old = dict.fromkeys(OVERRIDES, {})
     new = {**config, **old}
     invocations = list(new.get("invocations", []))
     if not any(isinstance(i, dict) and i.get("command") == command for i in invocations):
