@@ -177,10 +177,11 @@ def test_ild_targets_are_the_demonstration_or_it_moved_onto_each_start():
     demo = _smooth_demo(env, jax.random.PRNGKey(7))
     keys = jax.random.split(jax.random.PRNGKey(1), 3)
     _, state = dax_tasks.VmapWrapper(env, 3).reset(keys, env.default_params)
-    none = ild.episode_targets(env, demo, state.physics, ild.ILDConfig())
+    none = ild.episode_targets(env, demo, state.physics, env.default_params, ild.ILDConfig())
     np.testing.assert_array_equal(np.asarray(none.points),
                                   np.broadcast_to(np.asarray(demo.points), (3, 5, 1, 3)))
-    start = ild.episode_targets(env, demo, state.physics, ild.ILDConfig(align="start"))
+    start = ild.episode_targets(env, demo, state.physics, env.default_params,
+                                ild.ILDConfig(align="start"))
     # one point: the fit is the shift in the table plane that puts the demonstration's
     # start over each start (heights are not moved)
     starts = np.asarray(jax.vmap(env.object_points)(state.physics))
@@ -191,7 +192,59 @@ def test_ild_targets_are_the_demonstration_or_it_moved_onto_each_start():
                                np.asarray(demo.points[:, 0, :2])[None] + offset[:, None],
                                atol=1e-6)
     with pytest.raises(ValueError, match="unknown align"):
-        ild.ILDConfig(align="goal")
+        ild.ILDConfig(align="object")
+    # the toy task's distance does not align its goal: align="goal" is refused, by name
+    with pytest.raises(ValueError, match="goal_pose.*point_reach has none"):
+        ild.make_train(env, ild.ILDConfig(align="goal"))
+
+
+class _SlidingReach(toy.PointReach):
+    """The toy task with a goal that slides along x onto the object (Push-Rope's
+    alignment: no rotation, the mean x offset)."""
+
+    def goal_pose(self, x, goal):
+        dx = jnp.mean(x[:, 0] - goal[:, 0])
+        return jnp.eye(2, dtype=x.dtype), jnp.stack([dx, jnp.zeros_like(dx)])
+
+
+def test_ild_goal_alignment_moves_the_demonstration_as_the_task_aligns_its_goal():
+    base = toy.point_reach(horizon=4)
+    env = _SlidingReach(base.spec).with_goal(base.canonical_goal())
+    demo = _smooth_demo(base, jax.random.PRNGKey(7))
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    _, state = dax_tasks.VmapWrapper(env, 3).reset(keys, env.default_params)
+    out = ild.episode_targets(env, demo, state.physics, env.default_params,
+                              ild.ILDConfig(align="goal"))
+    starts = np.asarray(jax.vmap(env.object_points)(state.physics))
+    # slid along x only, by the starts' x offset from the demonstration's start; y and z kept
+    dx = starts[:, 0, 0] - np.asarray(demo.points[0, 0, 0])
+    np.testing.assert_allclose(np.asarray(out.points[..., 0]),
+                               np.asarray(demo.points[..., 0])[None] + dx[:, None, None],
+                               atol=1e-6)
+    np.testing.assert_allclose(np.asarray(out.points[..., 1:]),
+                               np.broadcast_to(np.asarray(demo.points[..., 1:]),
+                                               out.points[..., 1:].shape), atol=1e-7)
+    np.testing.assert_allclose(np.asarray(out.effector[..., 0]),
+                               np.asarray(demo.effector[..., 0])[None] + dx[:, None],
+                               atol=1e-6)
+
+
+def test_goal_motion_composes_the_tasks_goal_poses():
+    # a task whose goal pose is the rigid fit of the goal onto the object (the cloth's):
+    # between two starts that differ by a rigid motion, the goal motion is that motion
+    class Fit:
+        def goal_pose(self, x, goal):
+            return ild.planar_fit(goal, x)
+
+    pts = jax.random.uniform(jax.random.PRNGKey(2), (20, 3), minval=-0.1, maxval=0.1)
+    goal = pts.at[:, :2].set(pts[:, :2] @ jnp.asarray([[0.0, -1.0], [1.0, 0.0]]).T + 0.3)
+    angle, shift = -0.4, jnp.asarray([0.02, 0.07])
+    rot = jnp.asarray([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]],
+                      jnp.float32)
+    moved = pts.at[:, :2].set(pts[:, :2] @ rot.T + shift)
+    got_rot, got_shift = ild.goal_motion(Fit(), pts, moved, goal)
+    np.testing.assert_allclose(np.asarray(got_rot), np.asarray(rot), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(got_shift), np.asarray(shift), atol=1e-5)
 
 
 # ----------------------------------------------------------------------------- files

@@ -28,6 +28,12 @@ plane (a rotation about the vertical and a shift) that best maps its start's obj
 onto the episode's start's (least squares, :func:`planar_fit`), as the cloth tasks' distance
 aligns the goal to the cloth: from a start elsewhere on the table, or turned, the target is
 the demonstrated motion where the object is, not where the demonstration's object was.
+``align="goal"`` moves it instead by the task's own goal alignment (its ``goal_pose``,
+:func:`goal_motion`): the motion that takes the demonstration's start, in the frame in which
+the goal lies on it, to the episode's start in that frame. On the cloth tasks that is a
+rigid fit as ``start``'s; on Push-Rope, whose distance slides the goal along its line only,
+it is a shift along the line, so the demonstration's pushes across the line stay where
+the goal is.
 ``window`` truncates backpropagation as
 in APG (``None``: the whole episode); each update is one episode per env, in
 ``ceil(H / window)`` gradient steps, the state carried between them ``stop_gradient``-ed.
@@ -55,7 +61,7 @@ from ..optim import guarded_update, make_optimiser
 from . import demos
 
 WEIGHTINGS = ("per_part", "flat")
-ALIGNS = ("none", "start")
+ALIGNS = ("none", "start", "goal")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +69,8 @@ class ILDConfig:
     """total_env_steps: training budget (``num_envs * horizon`` per update); window:
     backpropagation horizon in env steps (``None``: the episode); weighting,
     object_weight, effector_weight: the state distance (see the module docstring);
-    starts: ``random`` or ``demo``; align: ``none`` or ``start`` (the module docstring)."""
+    starts: ``random`` or ``demo``; align: ``none``, ``start`` or ``goal`` (the module
+    docstring)."""
 
     total_env_steps: int = 2_000
     num_envs: int = 4
@@ -164,17 +171,47 @@ def move_demonstration(demo: Demonstration, rot, shift) -> Demonstration:
     return demo._replace(points=move(demo.points), effector=move(demo.effector))
 
 
-def episode_targets(env, demo: Demonstration, physics, config: ILDConfig) -> Demonstration:
+def goal_motion(env, demo_start, start, goal):
+    """``(rot (2, 2), shift (2,))``: the motion in the table plane ``p -> rot @ p + shift``
+    that takes the object points ``demo_start`` (N, 3) to ``start`` (N, 3) as the task
+    sees them: with the task's goal poses ``(R_d, s_d) = env.goal_pose(demo_start, goal)``
+    and ``(R_e, s_e) = env.goal_pose(start, goal)`` (the motion that lays ``goal`` on each),
+    ``rot = R_e R_d^T`` and ``shift = s_e - rot s_d``, so a point at a given place in the
+    demonstration's goal frame lands at the same place in the episode's."""
+    rot_d, shift_d = env.goal_pose(demo_start, goal)
+    rot_e, shift_e = env.goal_pose(start, goal)
+    rot = rot_e @ rot_d.T
+    return rot, shift_e - rot @ shift_d
+
+
+def check_align(env, config: ILDConfig) -> None:
+    """Raise ``ValueError`` if ``config.align`` needs what ``env`` lacks (``goal``: a
+    task whose distance aligns its goal to the object, ``goal_pose``)."""
+    if config.align == "goal" and not callable(getattr(env, "goal_pose", None)):
+        raise ValueError(f"ILD align='goal' needs a task whose distance aligns its goal to "
+                         f"the object (goal_pose); {env.spec.name} has none (use 'none' or "
+                         f"'start')")
+
+
+def episode_targets(env, demo: Demonstration, physics, params,
+                    config: ILDConfig) -> Demonstration:
     """The demonstration each of a batch of episodes tracks, ``points`` (B, H + 1, N, 3)
     and ``effector`` (B, H + 1, 3), from the episodes' start ``physics`` (batched):
-    ``demo`` itself (``align="none"``) or moved onto each start (``align="start"``)."""
+    ``demo`` itself (``align="none"``), moved onto each start by a rigid fit
+    (``align="start"``, :func:`planar_fit`) or by the task's goal alignment
+    (``align="goal"``, :func:`goal_motion` with ``params.goal``)."""
     batch = jax.tree_util.tree_leaves(physics)[0].shape[0]
     if config.align == "none":
         return demo._replace(
             points=jnp.broadcast_to(demo.points, (batch, *demo.points.shape)),
             effector=jnp.broadcast_to(demo.effector, (batch, *demo.effector.shape)))
     starts = jax.lax.stop_gradient(jax.vmap(env.object_points)(physics))
-    rot, shift = jax.vmap(planar_fit, in_axes=(None, 0))(demo.points[0], starts)
+    if config.align == "goal":
+        check_align(env, config)
+        goal = jnp.asarray(params.goal, demo.points.dtype)
+        rot, shift = jax.vmap(lambda s: goal_motion(env, demo.points[0], s, goal))(starts)
+    else:
+        rot, shift = jax.vmap(planar_fit, in_axes=(None, 0))(demo.points[0], starts)
     moved = jax.vmap(move_demonstration, in_axes=(None, 0, 0))(demo, rot, shift)
     return moved._replace(key=demo.key)
 
@@ -240,6 +277,7 @@ def make_window_loss(env, venv, pnet, config: ILDConfig, window: int):
 def make_train(env, config: ILDConfig):
     """``train(key, params, demo) -> (Policy, UpdateMetrics)``; ``demo`` a
     :class:`Demonstration`."""
+    check_align(env, config)
     window = config.window_for(env)
     n_windows = math.ceil(env.horizon / window)
     venv = dax_tasks.VmapWrapper(env, config.num_envs)
@@ -260,7 +298,7 @@ def make_train(env, config: ILDConfig):
             if config.starts == "demo":
                 keys = jnp.broadcast_to(demo.key, keys.shape)
             obs, state = venv.reset(keys, params)
-            targets = episode_targets(env, demo, state.physics, config)
+            targets = episode_targets(env, demo, state.physics, params, config)
 
             def one_window(c, _):
                 policy, opt_state, norm, obs, state = c
