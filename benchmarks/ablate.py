@@ -29,7 +29,9 @@ Records are appended as each seed finishes; a rerun with the same ``--out`` skip
     python -m benchmarks.ablate apg fold_cloth1 --variants baseline,raw_obs --seeds 3 \\
         --out benchmarks/results/2026-11-27-ablate-apg-fold_cloth1.jsonl
 
-writes the JSON lines to ``--out`` and the chart beside it (``.png``). Speed and scores are
+writes the JSON lines to ``--out`` and the chart beside it (``.png``). With
+``--baseline-from GRID_DIR`` the baseline's seeds are the benchmark grid's rows of the same
+budget, config and task code (:func:`grid_baseline`) instead of being trained again. Speed and scores are
 measured here, never asserted in tests.
 """
 
@@ -49,7 +51,8 @@ import numpy as np
 import dax_tasks
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
-from dax_algos.bench import execute, provenance, report, rundir
+from dax_algos.bench import execute, learning, provenance, report, rundir
+from dax_algos.bench import rows as rows_mod
 from dax_algos.learner import untrained_key
 from dax_algos.method import BUDGETS
 from dax_tasks.io import atomic_write
@@ -196,6 +199,54 @@ def read_records(path) -> list[dict]:
         if not r.get("summary"):
             records.append(r)
     return records
+
+
+def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
+                  sets: dict) -> list[dict]:
+    """The baseline's seed records taken from a benchmark grid's rows instead of trained
+    again: the grid's ``ok`` row of (``task``, ``method_name``, seed, ``budget``) for each
+    of ``seeds`` it has, its score, untrained score and learning curve (the training
+    episodes' score per update), marked ``"source"``. A row counts only if it was measured
+    on what today's baseline would run: its task fingerprint and method config digest are
+    today's (:func:`dax_algos.bench.provenance.stale_reason`, with ``sets`` applied);
+    otherwise ``ValueError`` says which seed and why. Per-rollout scores and gradient norms
+    are not in a grid row, so those fields are empty."""
+    grid_dir = Path(grid_dir)
+    rows = {int(r["seed"]): r
+            for r in rows_mod.latest(rows_mod.read_rows(grid_dir / "results.csv"))
+            if r["task"] == task and r["method"] == method_name and r["budget"] == budget
+            and r["status"] == "ok"}
+    runs = {(task, method_name, s, budget) for s in seeds}
+    curves: dict = {}
+    for c in learning.read_curves(learning.learning_path(grid_dir, task), keep=runs):
+        curves.setdefault(c["seed"], []).append(c["score"])
+    today = provenance.Today(method_overrides={method_name: sets})
+    out = []
+    for seed in seeds:
+        row = rows.get(int(seed))
+        if row is None:
+            continue
+        why = provenance.stale_reason(row, today)
+        if why or not provenance.has_provenance(row):
+            raise ValueError(f"{grid_dir}: {task} {method_name} seed {seed} is not today's "
+                             f"baseline ({why or 'no provenance recorded'})")
+        prov = {k: row.get(k, "") for k in ("versions", "commit", "precision", "device",
+                                             "task_fingerprint", "spec_digest",
+                                             "params_digest", "config_digest")}
+        out.append(_json_safe({
+            "method": method_name, "task": task, "budget": budget, "variant": "baseline",
+            "changes": {}, "sets": sets, "seed": int(seed), "source": f"grid:{grid_dir}",
+            "provenance": prov, "status": "ok", "score": float(row["score"]),
+            "rollouts": None, "untrained": float(row["untrained_score"]),
+            "untrained_rollouts": None, "curve": curves.get(int(seed), []),
+            "return_curve": [], "grad_norm": [],
+            "nonfinite_grads": int(row["nonfinite_grads"] or 0),
+            "wall_s": float(row["wall_s"] or "nan"),
+            "compile_s": float(row["compile_s"] or "nan"),
+            "env_steps": int(row["env_steps"] or 0),
+            "env_steps_per_s": (round(int(row["env_steps"]) / float(row["wall_s"]), 2)
+                                if row["env_steps"] and row["wall_s"] else None)}))
+    return out
 
 
 def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, budget: str,
@@ -360,7 +411,7 @@ def render_table(*paths) -> str:
     lines = ["| method | task | variant | change | seeds | score | untrained | "
              "− baseline (paired) | kept | gradient norm |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    loads, names = [], []
+    loads, names, borrowed = [], [], []
     for path in paths:
         _, records = read_result(path)
         seeds = [r for r in records if not r.get("summary")]
@@ -368,6 +419,10 @@ def render_table(*paths) -> str:
             raise KeyError("variant")
         loads += [r["load_1min"] for r in seeds if "load_1min" in r]
         names.append(Path(path).as_posix())
+        sources = sorted({r["source"].removeprefix("grid:") for r in seeds if "source" in r})
+        if sources:
+            borrowed.append(f"{seeds[0]['method']} on {seeds[0]['task']}: the grid "
+                            f"{', '.join(f'`{s}`' for s in sources)}")
 
         def pm(m, se):
             return "—" if m is None else (f"{m:.3f} ± {se:.3f}" if se is not None
@@ -391,6 +446,10 @@ def render_table(*paths) -> str:
               "initialisation on the same starts; a change is kept only where it beats the "
               "baseline by more than 2 SE of the difference paired by seed. Gradient norm: "
               "the median raw (unclipped) policy-gradient norm over every update and seed."]
+    if borrowed:
+        lines[-1] += (" Baseline seeds taken from a benchmark grid's rows of the same config "
+                      "and task code instead of trained again (`--baseline-from`): "
+                      + "; ".join(borrowed) + ".")
     return "\n".join(lines) + "\n"
 
 
@@ -422,6 +481,9 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="config override for every variant (Python literal)")
     p.add_argument("--demos", default=None, help="demonstration directory")
+    p.add_argument("--baseline-from", default=None, metavar="GRID_DIR",
+                   help="take the baseline's seeds from this benchmark grid's rows (same "
+                        "task code and config as today's baseline) instead of training them")
     p.add_argument("--max-minutes", type=float, default=None,
                    help="start no new seed after this many minutes (resume later)")
     p.add_argument("--out", required=True, help="JSON lines file (the chart goes beside)")
@@ -441,6 +503,15 @@ def main(argv=None) -> int:
     def expired() -> bool:
         return args.max_minutes is not None and time.monotonic() - t0 > 60 * args.max_minutes
 
+    if args.baseline_from and "baseline" in names:
+        todo = [s for s in range(args.seeds) if ("baseline", s) not in done]
+        try:
+            records += grid_baseline(args.baseline_from, args.task, args.method, todo,
+                                     args.budget, sets)
+        except ValueError as err:
+            p.error(str(err))
+        write(out, records)
+        done = {(r["variant"], r["seed"]) for r in records}
     for name in names:
         todo = [s for s in range(args.seeds) if (name, s) not in done]
         if not todo:

@@ -120,3 +120,65 @@ def test_a_variant_run_on_other_task_code_is_not_resumed(tmp_path):
         _rec("baseline", 2, 0.5)])
     assert ablate.stale_seeds(ablate.read_records(out), "apg", "fold_cloth1", "baseline",
                               {}, "full") == [1]
+
+
+def _grid_with_rows(tmp_path, task, method, rows):
+    """A benchmark grid directory with ``rows`` ((seed, score, untrained, config digest))
+    of ``method`` on ``task`` at the full budget and a two-update curve per seed."""
+    from dax_algos.bench import learning, provenance
+    from dax_algos.bench import rows as rows_mod
+
+    fingerprint = provenance.task_spec(task).fingerprint()
+    tmp_path.mkdir()
+    for seed, score, untrained, config in rows:
+        learning.append_curve(learning.learning_path(tmp_path, task), [
+            dict(task=task, method=method, seed=seed, budget="full", update=u,
+                 env_steps=10.0 * (u + 1), wall_s=1.0 + u, score=0.1 * (u + 1) + seed)
+            for u in range(2)])
+        rows_mod.append_row(tmp_path / "results.csv", rows_mod.make_row(
+            task, method, seed, "full", status="ok", score=score, untrained_score=untrained,
+            wall_s=12.5, compile_s=2.0, env_steps=40, nonfinite_grads=0,
+            task_fingerprint=fingerprint, config_digest=config))
+    return tmp_path
+
+
+def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monkeypatch):
+    """``--baseline-from GRID``: the grid's rows of today's baseline config and task code
+    become the baseline's seed records (score, untrained, curve), only the variants are
+    trained, and the summary pairs them by seed; a row of another config is refused by
+    seed, and nothing is written."""
+    from dax_algos import registry
+    from dax_algos.bench import provenance
+
+    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
+    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
+    trained = []
+
+    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
+        for seed in seeds:
+            trained.append((variant, seed))
+            yield {**_rec(variant, seed, 0.6 + 0.01 * seed), "method": method,
+                   "task": task}
+
+    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    today = provenance.config_digest(registry.get("apg").config("full", "fold_cloth1"))
+    grid = _grid_with_rows(tmp_path / "grid", "fold_cloth1", "apg",
+                           [(0, 0.40, 0.30, today), (1, 0.50, 0.31, today)])
+    out = tmp_path / "ablate.jsonl"
+    assert ablate.main(["apg", "fold_cloth1", "--variants", "baseline,raw_obs",
+                        "--seeds", "2", "--baseline-from", str(grid), "--out",
+                        str(out)]) == 0
+    assert trained == [("raw_obs", 0), ("raw_obs", 1)]
+    base = [r for r in ablate.read_records(out) if r["variant"] == "baseline"]
+    assert [(r["seed"], r["score"], r["untrained"]) for r in base] == [
+        (0, 0.40, 0.30), (1, 0.50, 0.31)]
+    assert base[1]["curve"] == pytest.approx([1.1, 1.2])
+    assert base[0]["source"].startswith("grid:")
+    summary = {s["variant"]: s for s in ablate.summarise(ablate.read_records(out))}
+    assert summary["raw_obs"]["minus_baseline"] == pytest.approx(0.155)
+    assert f"apg on fold_cloth1: the grid `{grid}`" in ablate.render_table(out)
+
+    stale = _grid_with_rows(tmp_path / "stale", "fold_cloth1", "apg",
+                            [(0, 0.40, 0.30, today), (1, 0.50, 0.31, "0123456789ab")])
+    with pytest.raises(ValueError, match="seed 1 is not today's baseline.*config changed"):
+        ablate.grid_baseline(stale, "fold_cloth1", "apg", [0, 1], "full", {})
