@@ -31,8 +31,8 @@ Records are appended as each seed finishes; a rerun with the same ``--out`` skip
 
 writes the JSON lines to ``--out`` and the chart beside it (``.png``). With
 ``--baseline-from GRID_DIR`` the baseline's seeds are the benchmark grid's rows of the same
-budget, config and task code (:func:`grid_baseline`) instead of being trained again. Speed and scores are
-measured here, never asserted in tests.
+budget, config and task code (:func:`grid_baseline`) instead of being trained again.
+Speed and scores are measured here, never asserted in tests.
 """
 
 from __future__ import annotations
@@ -110,7 +110,11 @@ VARIANTS = {
             # the demonstration moved by the task's own goal alignment (Push-Rope: slid
             # along the goal line only, where `aligned`'s rigid fit would also turn it)
             "goal_aligned": {"align": "goal"}, "no_clip": {"max_grad_norm": None},
-            "lr_low": {"learning_rate": 1e-4}},
+            "lr_low": {"learning_rate": 1e-4},
+            # a budget read off the curve: the MPM tasks' heavy budget is 5-10 updates of
+            # 2 episodes (Whip-Rope: 10, about 50 gradient steps for a policy that has to
+            # learn a 50-step throw); 5x the updates
+            "long": {"total_env_steps": 5000}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
             # end too few episodes to split its curve in fifths (budgets table: too short)
