@@ -230,10 +230,10 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
         row = rows.get(int(seed))
         if row is None:
             continue
-        why = provenance.stale_reason(row, today)
-        if why or not provenance.has_provenance(row):
+        why = provenance.stale_reason(row, today)  # a row without provenance: unknown
+        if why:
             raise ValueError(f"{grid_dir}: {task} {method_name} seed {seed} is not today's "
-                             f"baseline ({why or 'no provenance recorded'})")
+                             f"baseline ({why})")
         prov = {k: row.get(k, "") for k in ("versions", "commit", "precision", "device",
                                              "task_fingerprint", "spec_digest",
                                              "params_digest", "config_digest")}
