@@ -37,6 +37,24 @@ def read_result(path) -> tuple[Path, object]:
     return path, [json.loads(line) for line in text.splitlines() if line.strip()]
 
 
+def read_records(path) -> list[dict]:
+    """The records of a JSON-lines file that a run appends to (none if it does not exist):
+    every line's object except summary lines (``"summary": true``, rewritten, not read
+    back); a torn line (a killed writer) is dropped."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    records = []
+    for line in path.read_text().splitlines():
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if not r.get("summary"):
+            records.append(r)
+    return records
+
+
 def file_date(path) -> str | None:
     """The ``YYYY-MM-DD`` a result file's name starts with (the day it was measured), or
     None."""

@@ -49,6 +49,7 @@ import jax
 import numpy as np
 
 import dax_tasks
+from benchmarks._report import read_records
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
 from dax_algos.bench import execute, learning, provenance, report, rundir
@@ -188,23 +189,6 @@ def untrained_policy(env, method, config, seed: int):
     return method.learner.untrained(env, config, untrained_key(jax.random.PRNGKey(seed)))
 
 
-def read_records(path) -> list[dict]:
-    """The seed records already in ``path`` (none if it does not exist; a torn last line
-    is dropped)."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    records = []
-    for line in path.read_text().splitlines():
-        try:
-            r = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if not r.get("summary"):
-            records.append(r)
-    return records
-
-
 def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
                   sets: dict) -> list[dict]:
     """The baseline's seed records taken from a benchmark grid's rows instead of trained
@@ -234,9 +218,7 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
         if why:
             raise ValueError(f"{grid_dir}: {task} {method_name} seed {seed} is not today's "
                              f"baseline ({why})")
-        prov = {k: row.get(k, "") for k in ("versions", "commit", "precision", "device",
-                                             "task_fingerprint", "spec_digest",
-                                             "params_digest", "config_digest")}
+        prov = {k: row.get(k, "") for k in provenance.COLUMNS}
         out.append(_json_safe({
             "method": method_name, "task": task, "budget": budget, "variant": "baseline",
             "changes": {}, "sets": sets, "seed": int(seed), "source": f"grid:{grid_dir}",

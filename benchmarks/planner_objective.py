@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     done = set()
     if out.exists():
-        from benchmarks.ablate import read_records  # JSON lines, a torn last line dropped
+        from benchmarks._report import read_records  # a torn last line dropped
 
         done = {(r["method"], r["seed"]) for r in read_records(out)
                 if r.get("task") == args.task}
