@@ -131,6 +131,9 @@ VARIANTS = {
             "whole_episodes_d99": {"num_envs": 8, "unroll_length": 12,
                                    "total_env_steps": 1920, "discount": 0.99},
             "lr_high": {"learning_rate": 3e-3},
+            # a tenth of the default step (1e-3): on Push-Rope, where APG's and SHAC's
+            # budget step walked their policies under the untrained one
+            "lr_low": {"learning_rate": 1e-4},
             # the policy mean drifting under noisy advantages (a smaller step, a narrower
             # Gaussian), on whole episodes so the curve is read
             "whole_episodes_lr_low": {"num_envs": 8, "unroll_length": 12,
