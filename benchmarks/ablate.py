@@ -115,7 +115,13 @@ VARIANTS = {
             # a budget read off the curve: the MPM tasks' heavy budget is 5-10 updates of
             # 2 episodes (Whip-Rope: 10, about 50 gradient steps for a policy that has to
             # learn a 50-step throw); 5x the updates
-            "long": {"total_env_steps": 5000}},
+            "long": {"total_env_steps": 5000},
+            # the gradient of 2 starts per update is noisy (Whip-Rope's training episodes
+            # jump 0.3-0.67 between updates, and long collapses): the same 10 updates
+            # on 8 starts each
+            "envs_8": {"num_envs": 8, "total_env_steps": 4000},
+            # or long's 50 updates at a tenth of the step
+            "long_lr_low": {"total_env_steps": 5000, "learning_rate": 1e-4}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
             # end too few episodes to split its curve in fifths (budgets table: too short)
