@@ -44,7 +44,9 @@ PLANNING_BUDGETS = {
         "full_heavy": dict(cem=_CEM_FULL_HEAVY, diff=dict(steps=2, learning_rate=0.02))},
 }
 
-# APG's and SHAC's full budgets on the MLS-MPM tasks; the ones measured for a task change them
+# PPO's, APG's and SHAC's full budgets on the MLS-MPM tasks; the ones measured for a task
+# change them
+_PPO_FULL_HEAVY = dict(total_env_steps=960, num_envs=32, unroll_length=3)
 _APG_FULL_HEAVY = dict(total_env_steps=280, num_envs=4, window=10, learning_rate=1e-3)
 _SHAC_FULL_HEAVY = dict(total_env_steps=320, num_envs=4, window=10)
 
@@ -55,7 +57,7 @@ RL_BUDGETS = {
             "quick_heavy": dict(total_env_steps=48, num_envs=8, unroll_length=3, n_eval=2,
                                 minibatches=2),
             "full": dict(total_env_steps=2304, num_envs=64, unroll_length=3),
-            "full_heavy": dict(total_env_steps=960, num_envs=32, unroll_length=3),
+            "full_heavy": _PPO_FULL_HEAVY,
             # Whip-Rope: 32 x 3 steps never end an episode and give a gradient with no
             # direction; 64 whole episodes per update measured better (benchmarks.ablate
             # big_batch, benchmarks.gradient_noise), and its evaluation score falls after
@@ -66,7 +68,11 @@ RL_BUDGETS = {
             # per env (benchmarks.ablate whole_episodes on Pour-Water; Pour-Soup by
             # analogy, its curve in the README)
             **{f"full@{t}": dict(total_env_steps=1920, num_envs=8, unroll_length=12)
-               for t in ("pour_water", "pour_soup")}},
+               for t in ("pour_water", "pour_soup")},
+            # Push-Rope: as APG's and SHAC's, the heavy budget's step walks the policy
+            # under its untrained one; a tenth of it measured better (benchmarks.ablate
+            # lr_low; README, the Push-Rope ablations): it does not learn the task
+            "full@push_rope": {**_PPO_FULL_HEAVY, "learning_rate": 1e-4}},
     "apg": {"quick": dict(total_env_steps=48, num_envs=4, learning_rate=1e-3, n_eval=4),
             "quick_heavy": dict(total_env_steps=8, num_envs=2, window=4,
                                 learning_rate=1e-3, n_eval=2),
