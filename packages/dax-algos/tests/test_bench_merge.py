@@ -97,3 +97,31 @@ def test_pieces_of_another_grid_are_refused_before_anything_is_written(pieces, t
     assert runner.main(["merge", "--into", str(into), str(tmp_path / "missing")]) == 2
     assert "has no results.csv" in capsys.readouterr().err
     assert (into / "results.csv").read_text() == text
+
+
+def test_a_run_that_failed_in_into_is_retried_by_the_source(pieces, tmp_path):
+    root, _ = pieces
+    into, b = tmp_path / "into", root / "b"
+    shutil.copytree(root / "whole", into)
+    # into's expert seed 1 failed (as a run killed out of memory would); b ran it
+    csv_path = into / "results.csv"
+    lines = csv_path.read_text().splitlines(keepends=True)
+    header = lines[0].rstrip("\n").split(",")
+    i = next(n for n, line in enumerate(lines)
+             if line.startswith(f"{TASK},expert,1,"))
+    fields = lines[i].rstrip("\n").split(",")
+    fields[header.index("status")] = "failed"
+    fields[header.index("score")] = ""
+    fields[header.index("error")] = "RESOURCE_EXHAUSTED"
+    lines[i] = ",".join(fields) + "\n"
+    csv_path.write_text("".join(lines))
+    k = (TASK, "expert", 1, "quick")
+    done = merge_dirs(into, [b])
+    assert done.added == [k]
+    assert (TASK, "expert", 0, "quick") in done.skipped
+    rows = [r for r in read_rows(csv_path) if key(r) == k]
+    assert [r["status"] for r in rows] == ["failed", "ok"]
+    assert json.loads(rows[1]["previous_errors"]) == ["RESOURCE_EXHAUSTED"]
+    assert rows[1]["score"] == _by_key(b)[k]["score"]
+    # the retry counts now: merging again adds nothing
+    assert merge_dirs(into, [b]).added == []

@@ -9,7 +9,10 @@ directory, :func:`merge_dirs` adds to ``into``:
 * the rows of every run (task, method, seed, budget) that ``into`` has no row for, in the
   source's file order (a failed row and its retry both come), each with its ``device``,
   ``versions`` and ``commit`` as the source recorded them; a run ``into`` already has is
-  left as it is (its row counts; the source's is reported as skipped);
+  left as it is (its row counts; the source's is reported as skipped), unless ``into``'s
+  row that counts failed and the source's did not: then the source's rows come as the
+  retry of ``into``'s (their ``previous_errors`` begin with ``into``'s error history), as
+  if the run had been resumed there;
 * for each added run, its episode files (``episodes/<task>/<method>/seed<k>*``), its
   policy (``policies/<task>/<method>/seed<k>*``) and its learning-curve rows, all written
   before its row, as the runner writes them, so an interrupted merge leaves no row without
@@ -34,7 +37,7 @@ from dax_tasks.io import atomic_write, exclusive
 
 from . import learning, rundir
 from .episodes import DIR as EPISODES
-from .rows import append_row, key, read_rows, upgrade
+from .rows import append_row, errors_of, key, latest, read_rows, upgrade
 
 #: where a run's policy files are kept (``policies/<task>/<method>/seed<k>.msgpack``)
 POLICIES = "policies"
@@ -111,12 +114,16 @@ def merge_dirs(into, sources, lock_wait: float = 0.0) -> Merged:
             into_run = rundir.read_run_file(into)
             rows, run = _check_source(into, source, into_run, into_rows)
             upgrade(csv_path, into_rows)
-            have = {key(r) for r in into_rows}
+            history = _retried(into_rows, rows)
+            have = {key(r) for r in into_rows} - set(history)
             new = [r for r in rows if key(r) not in have]
             done.skipped += sorted({key(r) for r in rows if key(r) in have})
             curves = {}
             for r in new:
                 k = key(r)
+                if k in history:  # the retry of into's failed run
+                    own = json.loads(r["previous_errors"]) if r["previous_errors"] else []
+                    r = {**r, "previous_errors": json.dumps(history[k] + own)}
                 if k in done.added:  # a failed run and its retry: files and curve once
                     append_row(csv_path, r)
                     continue
@@ -135,6 +142,15 @@ def merge_dirs(into, sources, lock_wait: float = 0.0) -> Merged:
                 done.added.append(k)
             _add_invocations(into, into_run, run)
     return done
+
+
+def _retried(into_rows: list, rows: list) -> dict:
+    """``{run: into's error history}`` for each run whose row that counts failed in
+    ``into`` (:func:`~.rows.latest`) and did not in the source: the source's rows retry
+    it."""
+    theirs = {key(r): r["status"] for r in latest(rows)}
+    return {key(r): errors_of(r) for r in latest(into_rows)
+            if r["status"] == "failed" and theirs.get(key(r), "failed") != "failed"}
 
 
 def _add_invocations(into: Path, into_run: dict, run: dict) -> None:
