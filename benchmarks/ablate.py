@@ -121,7 +121,12 @@ VARIANTS = {
             # on 8 starts each
             "envs_8": {"num_envs": 8, "total_env_steps": 4000},
             # or long's 50 updates at a tenth of the step
-            "long_lr_low": {"total_env_steps": 5000, "learning_rate": 1e-4}},
+            "long_lr_low": {"total_env_steps": 5000, "learning_rate": 1e-4},
+            # the gripper's path alone (Whip-Rope: the rope's states through a 50-step
+            # whip give a gradient that more starts per update or more updates follow
+            # to lower scores; the gripper's is the smooth part of the state)
+            "effector_only": {"object_weight": 0.0},
+            "object_low": {"object_weight": 0.1}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
             # end too few episodes to split its curve in fifths (budgets table: too short)
