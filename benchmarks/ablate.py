@@ -126,7 +126,10 @@ VARIANTS = {
             # whip give a gradient that more starts per update or more updates follow
             # to lower scores; the gripper's is the smooth part of the state)
             "effector_only": {"object_weight": 0.0},
-            "object_low": {"object_weight": 0.1}},
+            "object_low": {"object_weight": 0.1},
+            # the pusher's path alone, moved by the task's goal alignment (Push-Rope: the
+            # demonstration's pushes slid along the goal line onto the rope)
+            "goal_effector": {"align": "goal", "object_weight": 0.0}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
             # end too few episodes to split its curve in fifths (budgets table: too short)
