@@ -37,7 +37,7 @@ from dax_tasks.io import atomic_write, exclusive
 
 from . import learning, rundir
 from .episodes import DIR as EPISODES
-from .rows import append_row, errors_of, key, latest, read_rows, upgrade
+from .rows import append_row, errors_of, key, latest, previous_errors, read_rows, upgrade
 
 #: where a run's policy files are kept (``policies/<task>/<method>/seed<k>.msgpack``)
 POLICIES = "policies"
@@ -122,8 +122,7 @@ def merge_dirs(into, sources, lock_wait: float = 0.0) -> Merged:
             for r in new:
                 k = key(r)
                 if k in history:  # the retry of into's failed run
-                    own = json.loads(r["previous_errors"]) if r["previous_errors"] else []
-                    r = {**r, "previous_errors": json.dumps(history[k] + own)}
+                    r = {**r, "previous_errors": json.dumps(history[k] + previous_errors(r))}
                 if k in done.added:  # a failed run and its retry: files and curve once
                     append_row(csv_path, r)
                     continue

@@ -86,11 +86,15 @@ def remeasured(before: Mapping, after: Mapping) -> bool:
     return any(before[f] != after[f] for f in fields)
 
 
+def previous_errors(row: Mapping) -> list:
+    """The errors of the run's earlier attempts (its ``previous_errors``, decoded)."""
+    text = row.get("previous_errors") or ""
+    return json.loads(text) if text else []
+
+
 def errors_of(row: Mapping) -> list:
     """The row's error history: its ``previous_errors`` and, if it failed, its error."""
-    text = row.get("previous_errors") or ""
-    history = json.loads(text) if text else []
-    return history + ([row["error"]] if row.get("status") == "failed" else [])
+    return previous_errors(row) + ([row["error"]] if row.get("status") == "failed" else [])
 
 
 def _float(row, col) -> float:
