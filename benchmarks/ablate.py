@@ -116,9 +116,8 @@ VARIANTS = {
             # 2 episodes (Whip-Rope: 10, about 50 gradient steps for a policy that has to
             # learn a 50-step throw); 5x the updates
             "long": {"total_env_steps": 5000},
-            # the gradient of 2 starts per update is noisy (Whip-Rope's training episodes
-            # jump 0.3-0.67 between updates, and long collapses): the same 10 updates
-            # on 8 starts each
+            # the gradient of 2 starts per update being too noisy to follow: the same
+            # updates on 8 starts each
             "envs_8": {"num_envs": 8, "total_env_steps": 4000},
             # or long's 50 updates at a tenth of the step
             "long_lr_low": {"total_env_steps": 5000, "learning_rate": 1e-4},
