@@ -153,6 +153,14 @@ VARIANTS = {
                                       "total_env_steps": 1920, "learning_rate": 1e-4},
             "whole_episodes_std_low": {"num_envs": 8, "unroll_length": 12,
                                        "total_env_steps": 1920, "init_log_std": -1.5},
+            # on the pours: the whole-episode budget's 96 samples per update, in minibatches
+            # of 24, leave seeds anywhere from under their untrained score to 3x it
+            # (Pour-Soup 0.05-0.32): 4x the envs per update (minibatches of 96), or a third
+            # of the step on the same samples
+            "whole_episodes_envs_32": {"num_envs": 32, "unroll_length": 12,
+                                       "total_env_steps": 7680},
+            "whole_episodes_lr_mid": {"num_envs": 8, "unroll_length": 12,
+                                      "total_env_steps": 1920, "learning_rate": 3e-4},
             # a batch whose gradient has a direction (benchmarks.gradient_noise): 64 whole
             # episodes per update
             "big_batch": _PPO_WHOLE_EPISODES_64,
