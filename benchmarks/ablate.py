@@ -31,7 +31,8 @@ Records are appended as each seed finishes; a rerun with the same ``--out`` skip
 
 writes the JSON lines to ``--out`` and the chart beside it (``.png``). With
 ``--baseline-from GRID_DIR`` the baseline's seeds are the benchmark grid's rows of the same
-budget, config and task code (:func:`grid_baseline`) instead of being trained again.
+budget, config and task code, run on this machine class (:func:`grid_baseline`), instead of
+being trained again.
 Speed and scores are measured here, never asserted in tests.
 """
 
@@ -214,15 +215,19 @@ def untrained_policy(env, method, config, seed: int):
 
 
 def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
-                  sets: dict) -> list[dict]:
+                  sets: dict, any_machine: bool = False) -> list[dict]:
     """The baseline's seed records taken from a benchmark grid's rows instead of trained
     again: the grid's ``ok`` row of (``task``, ``method_name``, seed, ``budget``) for each
     of ``seeds`` it has, its score, untrained score and learning curve (the training
     episodes' score per update), marked ``"source"``. A row counts only if it was measured
     on what today's baseline would run: its task fingerprint and method config digest are
-    today's (:func:`dax_algos.bench.provenance.stale_reason`, with ``sets`` applied);
-    otherwise ``ValueError`` says which seed and why. Per-rollout scores and gradient norms
-    are not in a grid row, so those fields are empty."""
+    today's (:func:`dax_algos.bench.provenance.stale_reason`, with ``sets`` applied),
+    and it ran on this device and machine class (:func:`dax_algos.bench.rundir.
+    machine_class`; a row that does not record its class is of an unknown one), since
+    training repeats to the bit only within one class; otherwise ``ValueError`` says which
+    seed and why. ``any_machine`` takes rows of another or unknown class (each record's
+    ``machine_class`` says which, and the table notes the mix). Per-rollout scores and
+    gradient norms are not in a grid row, so those fields are empty."""
     grid_dir = Path(grid_dir)
     rows = {int(r["seed"]): r
             for r in rows_mod.latest(rows_mod.read_rows(grid_dir / "results.csv"))
@@ -233,6 +238,7 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
     for c in learning.read_curves(learning.learning_path(grid_dir, task), keep=runs):
         curves.setdefault(c["seed"], []).append(c["score"])
     today = provenance.Today(method_overrides={method_name: sets})
+    here, device = rundir.machine_class(), provenance.device()
     out = []
     for seed in seeds:
         row = rows.get(int(seed))
@@ -242,10 +248,20 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
         if why:
             raise ValueError(f"{grid_dir}: {task} {method_name} seed {seed} is not today's "
                              f"baseline ({why})")
+        machine = row.get("machine") or "unknown"
+        if not any_machine and (machine in ("unknown", "") or machine != here
+                                or row["device"] != device):
+            raise ValueError(
+                f"{grid_dir}: {task} {method_name} seed {seed} ran on device "
+                f"{row['device'] or 'unknown'}, machine class {machine!r}, not this one "
+                f"({device}, {here!r}): a seed trained again need not repeat it (training "
+                f"repeats to the bit only within one class); train the baseline here, or "
+                f"pass --baseline-any-machine to borrow it anyway")
         prov = {k: row.get(k, "") for k in provenance.COLUMNS}
         out.append(_json_safe({
             "method": method_name, "task": task, "budget": budget, "variant": "baseline",
             "changes": {}, "sets": sets, "seed": int(seed), "source": f"grid:{grid_dir}",
+            "machine_class": machine,
             "provenance": prov, "status": "ok", "score": float(row["score"]),
             "rollouts": None, "untrained": float(row["untrained_score"]),
             "untrained_rollouts": None, "curve": curves.get(int(seed), []),
@@ -282,7 +298,7 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
         rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
                "changes": changes, "sets": sets, "seed": seed,
                "load_1min": round(os.getloadavg()[0], 2), "provenance": prov,
-               "machine": machine}
+               "machine": machine, "machine_class": rundir.machine_class(machine)}
         t0 = time.perf_counter()
         out = jax.device_get(jax.block_until_ready(
             compiled(jax.random.PRNGKey(seed), params, *data)))
@@ -421,12 +437,15 @@ def render_table(*paths) -> str:
     lines = ["| method | task | variant | change | seeds | score | untrained | "
              "− baseline (paired) | kept | gradient norm |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    loads, names, borrowed = [], [], []
+    loads, names, borrowed, mixed = [], [], [], []
     for path in paths:
         _, records = read_result(path)
         seeds = [r for r in records if not r.get("summary")]
         if not seeds or "variant" not in seeds[0]:
             raise KeyError("variant")
+        classes = {record_machine(r) for r in seeds}
+        if len(classes) > 1:
+            mixed.append(f"`{Path(path).as_posix()}` ({len(classes)} classes)")
         loads += [r["load_1min"] for r in seeds if "load_1min" in r]
         names.append(Path(path).as_posix())
         sources = sorted({r["source"].removeprefix("grid:") for r in seeds if "source" in r})
@@ -460,7 +479,21 @@ def render_table(*paths) -> str:
         lines[-1] += (" Baseline seeds taken from a benchmark grid's rows of the same config "
                       "and task code instead of trained again (`--baseline-from`): "
                       + "; ".join(borrowed) + ".")
+    if mixed:
+        lines[-1] += (" Seeds of more than one machine class (the CPU features XLA compiles "
+                      "for; unknown where a record or grid row does not say), on which one "
+                      "seed's training need not repeat, so that a paired difference may "
+                      "compare two machines' runs: " + "; ".join(mixed) + ".")
     return "\n".join(lines) + "\n"
+
+
+def record_machine(record: dict) -> str:
+    """The machine class a seed record ran on (:func:`dax_algos.bench.rundir.
+    machine_class`): its ``machine_class``, else the one of its ``machine`` (records of
+    before the class was recorded), else ``"unknown"``."""
+    if record.get("machine_class"):
+        return record["machine_class"]
+    return rundir.machine_class(record["machine"]) if record.get("machine") else "unknown"
 
 
 def stale_seeds(records: list[dict], method: str, task: str, variant: str, overrides: dict,
@@ -494,6 +527,9 @@ def main(argv=None) -> int:
     p.add_argument("--baseline-from", default=None, metavar="GRID_DIR",
                    help="take the baseline's seeds from this benchmark grid's rows (same "
                         "task code and config as today's baseline) instead of training them")
+    p.add_argument("--baseline-any-machine", action="store_true",
+                   help="with --baseline-from: take rows run on another device or machine "
+                        "class (or one the row does not record) too; the table says so")
     p.add_argument("--max-minutes", type=float, default=None,
                    help="start no new seed after this many minutes (resume later)")
     p.add_argument("--out", required=True, help="JSON lines file (the chart goes beside)")
@@ -517,7 +553,7 @@ def main(argv=None) -> int:
         todo = [s for s in range(args.seeds) if ("baseline", s) not in done]
         try:
             records += grid_baseline(args.baseline_from, args.task, args.method, todo,
-                                     args.budget, sets)
+                                     args.budget, sets, args.baseline_any_machine)
         except ValueError as err:
             p.error(str(err))
         write(out, records)

@@ -4,6 +4,7 @@ a resumed run reads back what a killed one wrote, a torn last line dropped."""
 
 import json
 import math
+import re
 
 import pytest
 
@@ -122,11 +123,14 @@ def test_a_variant_run_on_other_task_code_is_not_resumed(tmp_path):
                               {}, "full") == [1]
 
 
-def _grid_with_rows(tmp_path, task, method, rows):
+def _grid_with_rows(tmp_path, task, method, rows, machine=None):
     """A benchmark grid directory with ``rows`` ((seed, score, untrained, config digest))
-    of ``method`` on ``task`` at the full budget and a two-update curve per seed."""
-    from dax_algos.bench import learning, provenance
+    of ``method`` on ``task`` at the full budget and a two-update curve per seed, run on
+    this device and ``machine`` class (this host's if ``None``)."""
+    from dax_algos.bench import learning, provenance, rundir
     from dax_algos.bench import rows as rows_mod
+
+    machine = rundir.machine_class() if machine is None else machine
 
     fingerprint = provenance.task_spec(task).fingerprint()
     tmp_path.mkdir()
@@ -138,7 +142,8 @@ def _grid_with_rows(tmp_path, task, method, rows):
         rows_mod.append_row(tmp_path / "results.csv", rows_mod.make_row(
             task, method, seed, "full", status="ok", score=score, untrained_score=untrained,
             wall_s=12.5, compile_s=2.0, env_steps=40, nonfinite_grads=0,
-            task_fingerprint=fingerprint, config_digest=config))
+            task_fingerprint=fingerprint, config_digest=config,
+            device=provenance.device(), machine=machine))
     return tmp_path
 
 
@@ -182,3 +187,33 @@ def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monk
                             [(0, 0.40, 0.30, today), (1, 0.50, 0.31, "0123456789ab")])
     with pytest.raises(ValueError, match="seed 1 is not today's baseline.*config changed"):
         ablate.grid_baseline(stale, "fold_cloth1", "apg", [0, 1], "full", {})
+
+
+def test_a_grids_row_of_another_machine_class_is_not_borrowed_unless_asked(tmp_path):
+    """Training repeats to the bit only within one machine class: a grid row of another
+    class, or of none recorded (rows of before the column), is refused by seed with the two
+    classes named; with ``any_machine`` it is taken, its record says its class, and the
+    table of a file mixing classes says so."""
+    from dax_algos import registry
+    from dax_algos.bench import provenance, rundir
+
+    today = provenance.config_digest(registry.get("apg").config("full", "fold_cloth1"))
+    for machine in ("sse4_1+avx", ""):
+        grid = _grid_with_rows(tmp_path / f"grid{machine}", "fold_cloth1", "apg",
+                               [(0, 0.40, 0.30, today)], machine=machine)
+        with pytest.raises(ValueError, match=(
+                f"seed 0 ran on device cpu:cpu, machine class "
+                f"{re.escape(repr(machine or 'unknown'))}, "
+                f"not this one .*--baseline-any-machine")):
+            ablate.grid_baseline(grid, "fold_cloth1", "apg", [0], "full", {})
+    (base,) = ablate.grid_baseline(grid, "fold_cloth1", "apg", [0], "full", {},
+                                   any_machine=True)
+    assert base["machine_class"] == "unknown" and base["score"] == 0.40
+    out = tmp_path / "mixed.jsonl"
+    here = {**_rec("raw_obs", 0, 0.5), "machine": rundir.cpu_info()}
+    ablate.write(out, [base, here])
+    assert ablate.record_machine(here) == rundir.machine_class()
+    assert f"paired difference may compare two machines' runs: `{out.as_posix()}` (2 " \
+           f"classes)" in ablate.render_table(out)
+    ablate.write(out, [{**base, "machine_class": rundir.machine_class()}, here])
+    assert "machine class" not in ablate.render_table(out)

@@ -18,6 +18,7 @@ from dax_algos.bench.rows import (
     COLUMNS,
     OLD_COLUMNS,
     PROVENANCE_COLUMNS,
+    UNTRAINED_COLUMNS,
     append_row,
     latest,
     make_row,
@@ -317,10 +318,27 @@ def test_a_results_file_from_before_untrained_scores_reads_and_is_upgraded(tmp_p
     assert path.read_text().splitlines()[0] == ",".join(COLUMNS)
     assert read_rows(path) == [old]
     with open(path, "a") as f:  # an untrained score is a final-step r_gt too
-        f.write(",".join(["fold_cloth1", "ppo", "1", "quick", "ok", "0.5"]
-                         + [""] * (len(COLUMNS) - 7) + ["1.5"]) + "\n")
+        fields = dict.fromkeys(COLUMNS, "")
+        fields.update(task="fold_cloth1", method="ppo", seed="1", budget="quick",
+                      status="ok", score="0.5", untrained_score="1.5")
+        f.write(",".join(fields.values()) + "\n")
     with pytest.raises(ValueError, match=r"line 3: untrained_score '1.5' is not in \[0, 1\]"):
         read_rows(path)
+
+
+def test_a_results_file_from_before_the_machine_column_reads_and_is_upgraded(tmp_path):
+    """Rows written before rows recorded their machine class read with it empty (an
+    unknown class), and the file takes the new column on upgrade, values kept."""
+    path = tmp_path / "results.csv"
+    _write(path, [], header=UNTRAINED_COLUMNS)
+    with open(path, "a") as f:
+        f.write(",".join(["fold_cloth1", "ppo", "0", "quick", "ok", "0.5"]
+                         + [""] * (len(UNTRAINED_COLUMNS) - 7) + ["0.25"]) + "\n")
+    (old,) = read_rows(path)
+    assert (old["untrained_score"], old["machine"]) == ("0.25", "")
+    upgrade(path, [old])
+    assert path.read_text().splitlines()[0] == ",".join(COLUMNS)
+    assert read_rows(path) == [old]
 
 
 def test_a_results_file_from_before_provenance_reads_as_stale_and_is_upgraded(tmp_path):

@@ -221,14 +221,14 @@ def stale_section(rows, stale, include_stale: bool) -> list[str]:
 
 def provenance_table(rows) -> list[str]:
     """HTML lines: the distinct provenances of the rows (versions, commit, precision,
-    device) with how many rows have each."""
-    cols = ("versions", "commit", "precision", "device")
+    device, machine class) with how many rows have each."""
+    cols = ("versions", "commit", "precision", "device", "machine")
     counts: dict = {}
     for r in rows:
         k = tuple(r.get(c, "") for c in cols)
         counts[k] = counts.get(k, 0) + 1
     body = [[*(v or "unknown" for v in k), str(n)] for k, n in counts.items()]
-    return _table([*cols, "rows"], body, name_cols=4, table_id="provenance")
+    return _table([*cols, "rows"], body, name_cols=len(cols), table_id="provenance")
 
 
 def compute_seconds(rows) -> float:

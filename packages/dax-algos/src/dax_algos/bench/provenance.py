@@ -18,6 +18,11 @@ Each row of ``results.csv`` carries (:data:`COLUMNS`):
 * ``device``: the JAX platform and device kind, ``platform:kind`` (``cpu:cpu``,
   ``gpu:NVIDIA H100 80GB HBM3``).
 
+Beside them (not part of staleness) a row records ``machine``, the host's machine class
+(:func:`dax_algos.bench.rundir.machine_class`: architecture and the CPU features XLA
+compiles for): training, a chaotic computation, repeats to the bit only within one class,
+so a row stands in for a seed trained again only on a machine of its class.
+
 A row is **stale** when what it was measured on is no longer what the code builds: its
 fingerprint differs from the task's today (built with the run's task overrides), or its
 config digest differs from the config the same method name gives today (budget, task and
@@ -129,8 +134,10 @@ def commit() -> str:
 
 def of_run(env=None, config=None) -> dict:
     """The provenance columns of a row made on ``env`` (a built task, or ``None``) with the
-    method ``config`` (or ``None``): those that cannot be known are ``""``."""
-    row = dict(versions=versions(), commit=commit(), precision=precision(), device=device())
+    method ``config`` (or ``None``), and its ``machine``: those that cannot be known are
+    ``""``."""
+    row = dict(versions=versions(), commit=commit(), precision=precision(), device=device(),
+               machine=rundir.machine_class())
     if env is not None:
         row.update(task_fingerprint=env.spec.fingerprint(), spec_digest=spec_digest(env.spec),
                    params_digest=tree_digest(env.default_params))

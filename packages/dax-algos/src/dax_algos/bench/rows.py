@@ -33,7 +33,12 @@ OLD_COLUMNS = ("task", "method", "seed", "budget", "status", "score", "final_dis
 PROVENANCE_COLUMNS = (*OLD_COLUMNS, *provenance.COLUMNS, "previous_errors")
 #: ``untrained_score``: a learner's untrained policy on the same evaluation starts (empty
 #: for a planner)
-COLUMNS = (*PROVENANCE_COLUMNS, "untrained_score")
+UNTRAINED_COLUMNS = (*PROVENANCE_COLUMNS, "untrained_score")
+#: ``machine``: the host's machine class (:func:`.rundir.machine_class`; empty in rows
+#: written before rows recorded it: unknown)
+COLUMNS = (*UNTRAINED_COLUMNS, "machine")
+#: every header a results file may have, oldest first
+HEADERS = (OLD_COLUMNS, PROVENANCE_COLUMNS, UNTRAINED_COLUMNS, COLUMNS)
 STATUSES = ("ok", "failed", "skipped")
 #: what a task or method name may be: it becomes a directory or file name
 NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,99}")
@@ -149,7 +154,8 @@ def check_row(row: Mapping) -> None:
 def read_rows(path: Path) -> list[dict]:
     """Every row of ``results.csv``, in file order, each with all of :data:`COLUMNS` (a
     file with :data:`OLD_COLUMNS` reads with empty provenance, one with
-    :data:`PROVENANCE_COLUMNS` with no untrained scores). An incomplete last line,
+    :data:`PROVENANCE_COLUMNS` with no untrained scores, one of :data:`HEADERS` without
+    ``machine`` with it empty). An incomplete last line,
     from an interrupted write, is dropped from the file. A file that is not a results file
     (not UTF-8 text, other columns) is a ``ValueError`` naming it; a row that is not valid
     (:func:`check_row`; a row with too few or too many fields; a second row for a (task,
@@ -168,7 +174,7 @@ def read_rows(path: Path) -> list[dict]:
         raise garbled("not UTF-8 text") from None
     except csv.Error as err:
         raise garbled(f"bad CSV: {err}") from None
-    if tuple(header) not in (COLUMNS, PROVENANCE_COLUMNS, OLD_COLUMNS):
+    if tuple(header) not in HEADERS:
         raise garbled(f"columns {header}, expected {list(COLUMNS)}")
     rows = _parse(path, text[:text.rfind("\n") + 1], header)
     csvlog.read_complete(path)  # a results file: cut the incomplete line off it now
@@ -208,8 +214,8 @@ def _parse(path: Path, text: str, header) -> list[dict]:
 
 
 def upgrade(path: Path, rows: list) -> None:
-    """Rewrite a results file of older columns (:data:`OLD_COLUMNS`,
-    :data:`PROVENANCE_COLUMNS`) with :data:`COLUMNS` (atomically; its rows keep their
+    """Rewrite a results file of older columns (the earlier :data:`HEADERS`) with
+    :data:`COLUMNS` (atomically; its rows keep their
     values, the new columns stay empty), so that new rows can be appended; nothing for a
     file that has them already."""
     path = Path(path)

@@ -144,6 +144,21 @@ def cpu_info(cpuinfo: str | Path = "/proc/cpuinfo") -> dict:
             "xla_max_isa": cap.group(1) if cap else None}
 
 
+def machine_class(info: Mapping | None = None) -> str:
+    """The machine class of :func:`cpu_info`'s ``info`` (this host's if ``None``) as one
+    string: the ISA features joined by ``+`` (x86-64's and arm64's names differ) and the
+    XLA cap, if any (``"sse4_1+...+avx512f max_isa=AVX2"``). Two runs of one seed repeat to the bit
+    when this agrees (the same code and config); a results row records it (column
+    ``machine``) so that a row is only ever compared, seed by seed, with one of its class.
+    ``"unknown"`` where the features could not be read."""
+    info = cpu_info() if info is None else info
+    features = list(info.get("cpu_features") or ["unknown"])
+    if features == ["unknown"]:
+        return "unknown"
+    cap = info.get("xla_max_isa")
+    return ("+".join(features) or "none") + (f" max_isa={cap}" if cap else "")
+
+
 def machine_info() -> dict:
     """The machine a run ran on: platform, Python, CPU count, model and the instruction-set
     features XLA compiles for (:func:`cpu_info`), JAX backend and devices."""
