@@ -259,9 +259,10 @@ def code_files() -> list:
 
 
 def _program_text(source: bytes) -> str:
-    """``ast.dump`` of ``source`` without line numbers and without docstrings (the first
-    statement of a module, class or function body when it is a string constant); the
-    source itself if it does not parse."""
+    """The syntax tree of ``source`` as text (:func:`_tree_text`: no line numbers, and the
+    same text on every Python from 3.10 on) without docstrings (the first statement of a
+    module, class or function body when it is a string constant); the source itself if it
+    does not parse."""
     try:
         tree = ast.parse(source)
     except SyntaxError:
@@ -273,7 +274,23 @@ def _program_text(source: bytes) -> str:
                 and isinstance(body[0].value, ast.Constant)
                 and isinstance(body[0].value.value, str)):
             node.body = body[1:] or [ast.Pass()]
-    return ast.dump(tree, include_attributes=False)
+    return _tree_text(tree)
+
+
+def _tree_text(node) -> str:
+    """``node`` as ``Name(field=value, ...)``, recursively, leaving out every field that is
+    ``None``, an empty list or absent. ``ast.dump`` differs between Python versions on the
+    same source (3.12 adds ``type_params=[]`` to every function and class, 3.13 drops empty
+    fields by default), which made one checkout's fingerprints depend on the interpreter;
+    this text does not, as long as the node and field names stay."""
+    if isinstance(node, ast.AST):
+        fields = ", ".join(f"{name}={_tree_text(value)}" for name in node._fields
+                           if (value := getattr(node, name, None)) is not None
+                           and not (isinstance(value, list) and not value))
+        return f"{type(node).__name__}({fields})"
+    if isinstance(node, list):
+        return "[" + ", ".join(_tree_text(x) for x in node) + "]"
+    return repr(node)
 
 
 @dataclasses.dataclass(frozen=True)
