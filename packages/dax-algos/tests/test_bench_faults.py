@@ -166,14 +166,34 @@ def test_a_second_row_measured_on_other_code_or_config_is_valid_and_counts(tmp_p
 
 # ----------------------------------------------------------------------- seeds bounded, lazily
 
+def test_seeds_are_a_count_or_a_range():
+    assert grid.parse_seeds("5") == range(5) and grid.parse_seeds("3-4") == range(3, 5)
+    assert grid.seeds_text(range(3, 5)) == "3-4" and grid.seeds_text(5) == "5"
+    assert grid.seeds_text(grid.parse_seeds("2-2")) == "2-2"
+    for bad in ("4-2", "a", "-1", "0", "1-x", str(2**32) + "-" + str(2**32)):
+        with pytest.raises(ValueError, match=f"seeds|{bad}"):
+            grid.parse_seeds(bad)
+
+
+def test_a_piece_of_the_seeds_runs_those_seeds_as_the_whole_grid_does(tmp_path):
+    """``--seeds 1-1`` runs seed 1 alone, recorded as such, with the row the whole grid's
+    seed 1 has (each seed computed the same whichever seeds run with it), so that pieces
+    run in separate processes merge into the grid."""
+    whole = {r["seed"]: r for r in _run(tmp_path / "whole", seeds=2)}
+    (piece,) = _run(tmp_path / "piece", seeds=range(1, 2))
+    assert piece["seed"] == "1" and piece["score"] == whole["1"]["score"]
+    assert piece["final_distance"] == whole["1"]["final_distance"]
+    (inv,) = json.loads((tmp_path / "piece" / rundir.RUN_FILE).read_text())["invocations"]
+    assert "--seeds 1-1" in inv["command"]
+
 def test_seeds_are_bounded_and_the_grid_is_enumerated_lazily(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:  # an argument error, before any work
         runner.main(["run", "--tasks", TASK, "--methods", "random", "--seeds",
                      "99999999999999", "--out", str(tmp_path)])
     err = capsys.readouterr().err
-    assert exit_.value.code == 2 and "--seeds: seeds must be an int in 1 .. 4294967296" in err
+    assert exit_.value.code == 2 and "--seeds: seeds must be an int K in 1 .. 4294967296" in err
     assert not (tmp_path / "results.csv").exists()
-    with pytest.raises(ValueError, match="seeds must be an int in 1 .. 4294967296"):
+    with pytest.raises(ValueError, match="seeds must be an int K in 1 .. 4294967296"):
         run_grid(TASK, "random", seeds=2**32 + 1, out=tmp_path)
     done = [make_row(TASK, "random", 1, "quick", status="ok")]
     plan = Plan([TASK, "fold_cloth3"], ["random", "expert"], grid.MAX_SEEDS, "quick", done,
@@ -284,7 +304,7 @@ def test_the_paper_preset_is_every_task_and_method_at_full_budgets_five_seeds():
                                            method_overrides={})
     args = runner._parser().parse_args(["run", "--preset", "paper", "--tasks", TASK,
                                         "--seeds", "2", "--quick"])
-    assert runner._grid_args(args) == dict(tasks=TASK, methods="all", seeds=2,
+    assert runner._grid_args(args) == dict(tasks=TASK, methods="all", seeds=range(2),
                                            out="results_paper", quick=True,
                                            method_overrides={})
 

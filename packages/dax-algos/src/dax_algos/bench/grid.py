@@ -94,7 +94,7 @@ def cli_command(tasks, methods, seeds, out, quick, backend="local", ray_address=
     """The ``dax-bench run`` command line that runs this grid (what ``run.json`` records
     when :func:`run_grid` is called from Python)."""
     parts = ["dax-bench", "run", "--tasks", ",".join(tasks), "--methods", ",".join(methods),
-             "--seeds", str(seeds), *(["--quick"] if quick else []), "--out", str(out),
+             "--seeds", seeds_text(seeds), *(["--quick"] if quick else []), "--out", str(out),
              *(["--backend", backend] if backend != "local" else []),
              *(["--ray-address", ray_address] if ray_address else [])]
     return shlex.join(parts)
@@ -116,16 +116,40 @@ class GridRows(list):
         return f"{self.left} runs left ({per}); run the same command again to continue"
 
 
-def check_seeds(seeds) -> int:
-    """``seeds`` if it is an int in ``1 .. MAX_SEEDS`` (seeds ``0 .. seeds - 1`` are
-    ``PRNGKey``'s 32-bit seeds); ``ValueError`` otherwise."""
-    if not (isinstance(seeds, int) and not isinstance(seeds, bool) and 0 < seeds <= MAX_SEEDS):
-        raise ValueError(f"seeds must be an int in 1 .. {MAX_SEEDS} (seeds 0 .. K-1 are "
-                         f"PRNGKey's 32-bit seeds), got {seeds!r}")
-    return seeds
+def check_seeds(seeds) -> range:
+    """The seeds of a grid as a ``range``: an int ``K`` in ``1 .. MAX_SEEDS`` is seeds
+    ``0 .. K-1``; a ``range`` of step 1 within ``0 .. MAX_SEEDS - 1`` (a piece of a grid:
+    seeds 3-4 of five run in another process, gathered by ``dax-bench merge``) is itself
+    (``PRNGKey`` takes 32-bit seeds); ``ValueError`` otherwise."""
+    if isinstance(seeds, range):
+        if seeds.step == 1 and 0 <= seeds.start < seeds.stop <= MAX_SEEDS:
+            return seeds
+    elif isinstance(seeds, int) and not isinstance(seeds, bool) and 0 < seeds <= MAX_SEEDS:
+        return range(seeds)
+    raise ValueError(f"seeds must be an int K in 1 .. {MAX_SEEDS} (seeds 0 .. K-1 are "
+                     f"PRNGKey's 32-bit seeds) or a non-empty range of step 1 within them, "
+                     f"got {seeds!r}")
 
 
-def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike = "results",
+def seeds_text(seeds) -> str:
+    """How ``dax-bench run --seeds`` writes :func:`check_seeds`'s ``seeds``: ``"K"`` for
+    seeds ``0 .. K-1``, ``"A-B"`` (both included) for any other range."""
+    seeds = check_seeds(seeds)
+    return str(seeds.stop) if seeds.start == 0 else f"{seeds.start}-{seeds.stop - 1}"
+
+
+def parse_seeds(text: str) -> range:
+    """``--seeds`` text (``"K"`` or ``"A-B"``, :func:`seeds_text`) as :func:`check_seeds`'s
+    range; ``ValueError`` naming the text otherwise."""
+    try:
+        first, sep, last = text.strip().partition("-")
+        seeds = range(int(first), int(last) + 1) if sep else int(first)
+    except ValueError:
+        raise ValueError(f"expected a number of seeds K or a range A-B, got {text!r}") from None
+    return check_seeds(seeds)
+
+
+def run_grid(tasks="all", methods="all", seeds: int | range = 1, out: str | os.PathLike = "results",
              quick: bool = False, task_overrides: Mapping | None = None,
              method_overrides: Mapping | None = None, cache_goal: bool = True,
              progress: bool = True, demo_dir: str | os.PathLike | None = None,
@@ -144,7 +168,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     command: the command line recorded in ``run.json`` (default: the equivalent
     ``dax-bench run`` command, :func:`cli_command`). seeds: ``K`` runs seeds ``0 .. K-1``
     (at most :data:`MAX_SEEDS`; the runs are enumerated as they are needed, never listed
-    whole).
+    whole), a ``range`` those seeds (:func:`check_seeds`).
 
     retry_failed: a run whose row in ``out`` is ``failed`` is run again (its new row lists
     the earlier errors in ``previous_errors``; the failed row stays in the file and no
@@ -177,7 +201,7 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
     task_names = resolve_tasks(tasks)
     method_names = resolve_methods(methods)
     _check_backend(backend, ray_address, ray_cpus)
-    check_seeds(seeds)
+    seeds = check_seeds(seeds)
     if max_minutes is not None and not max_minutes > 0:
         raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
     budget = "quick" if quick else "full"
@@ -222,12 +246,13 @@ def run_grid(tasks="all", methods="all", seeds: int = 1, out: str | os.PathLike 
         return result
 
 
-def rows_of(rows, tasks, methods, seeds: int, budget: str) -> list:
-    """The rows of ``rows`` that belong to the grid ``tasks`` x ``methods`` x seeds
-    ``0 .. seeds - 1`` of ``budget`` (names as :func:`run_grid` takes them)."""
+def rows_of(rows, tasks, methods, seeds: int | range, budget: str) -> list:
+    """The rows of ``rows`` that belong to the grid ``tasks`` x ``methods`` x ``seeds``
+    (:func:`check_seeds`) of ``budget`` (names as :func:`run_grid` takes them)."""
     tasks, methods = set(resolve_tasks(tasks)), set(resolve_methods(methods))
+    seeds = check_seeds(seeds)
     return [r for r in rows if r["task"] in tasks and r["method"] in methods
-            and int(r["seed"]) < seeds and r["budget"] == budget]
+            and int(r["seed"]) in seeds and r["budget"] == budget]
 
 
 def _check_precision(path: Path, rows) -> None:
@@ -246,6 +271,7 @@ class Plan:
 
     def __init__(self, tasks, methods, seeds, budget, rows, retry_failed, deadline,
                  redo=frozenset()):
+        seeds = check_seeds(seeds)
         self.tasks, self.methods, self.seeds, self.budget = tasks, methods, seeds, budget
         self.deadline = deadline
         self.history = {key(r): errors_of(r) for r in rows
@@ -254,8 +280,8 @@ class Plan:
         self.done = {key(r) for r in rows} - set(self.history) - set(redo)
         self.finished: Counter = Counter()
         in_grid = Counter(t for t, m, s, b in self.done
-                          if t in tasks and m in methods and s < seeds and b == budget)
-        self.todo_by_task = {t: len(methods) * seeds - in_grid[t] for t in tasks}
+                          if t in tasks and m in methods and s in seeds and b == budget)
+        self.todo_by_task = {t: len(methods) * len(seeds) - in_grid[t] for t in tasks}
         self.total = sum(self.todo_by_task.values())
 
     def time_is_up(self) -> bool:
@@ -264,7 +290,7 @@ class Plan:
 
     def seeds_of(self, task, method):
         """The seeds of (task, method) still to run, lazily; none once the time is up."""
-        for s in range(self.seeds):
+        for s in self.seeds:
             if self.time_is_up():
                 return
             if (task, method, s, self.budget) not in self.done:

@@ -3,7 +3,7 @@
 The ``dax-bench`` command::
 
     dax-bench run [--preset demo|cloth|paper] [--tasks T1,T2|all] [--methods M1,M2|all]
-                  [--seeds K] [--quick | --budget quick|full] [--out DIR]
+                  [--seeds K|A-B] [--quick | --budget quick|full] [--out DIR]
                   [--max-minutes N] [--no-retry-failed] [--include-stale]
                   [--rerun-stale]
     dax-bench report --out DIR [--budget quick|full] [--include-stale] [--markdown]
@@ -36,13 +36,9 @@ from . import grid, merge, page, presets, summary
 from .execute import use_default_compilation_cache
 
 
-def _seeds(text: str) -> int:
+def _seeds(text: str) -> range:
     try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    try:
-        return grid.check_seeds(value)
+        return grid.parse_seeds(text)
     except ValueError as err:
         raise argparse.ArgumentTypeError(str(err)) from None
 
@@ -80,7 +76,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--methods", default=None, help="comma-separated method names, or all "
                                                      "(default: all)")
     run.add_argument("--seeds", type=_seeds, default=None,
-                     help=f"number of seeds K (seeds 0..K-1, K <= {grid.MAX_SEEDS}; default 1)")
+                     help=f"number of seeds K (seeds 0..K-1, K <= {grid.MAX_SEEDS}; default 1), "
+                          f"or seeds A-B (A..B, both included: a piece of a grid run "
+                          f"elsewhere too, gathered with merge)")
     run.add_argument("--quick", action="store_const", const="quick", dest="budget",
                      help="the quick budgets (a smoke run; the same as --budget quick)")
     run.add_argument("--budget", choices=method.BUDGETS, default=None,
