@@ -155,9 +155,9 @@ VARIANTS = {
             "whole_episodes_std_low": {"num_envs": 8, "unroll_length": 12,
                                        "total_env_steps": 1920, "init_log_std": -1.5},
             # on the pours: the whole-episode budget's 96 samples per update, in minibatches
-            # of 24, leave seeds anywhere from under their untrained score to 3x it
-            # (Pour-Soup 0.05-0.32): 4x the envs per update (minibatches of 96), or a third
-            # of the step on the same samples
+            # of 24, may be why its seeds end anywhere from under their untrained score to
+            # far above it: 4x the envs per update (minibatches of 96), or a third of the
+            # step on the same samples
             "whole_episodes_envs_32": {"num_envs": 32, "unroll_length": 12,
                                        "total_env_steps": 7680},
             "whole_episodes_lr_mid": {"num_envs": 8, "unroll_length": 12,
@@ -249,7 +249,7 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
             raise ValueError(f"{grid_dir}: {task} {method_name} seed {seed} is not today's "
                              f"baseline ({why})")
         machine = row.get("machine") or "unknown"
-        if not any_machine and (machine in ("unknown", "") or machine != here
+        if not any_machine and (machine == "unknown" or machine != here
                                 or row["device"] != device):
             raise ValueError(
                 f"{grid_dir}: {task} {method_name} seed {seed} ran on device "

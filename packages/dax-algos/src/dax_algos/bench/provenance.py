@@ -19,9 +19,9 @@ Each row of ``results.csv`` carries (:data:`COLUMNS`):
   ``gpu:NVIDIA H100 80GB HBM3``).
 
 Beside them (not part of staleness) a row records ``machine``, the host's machine class
-(:func:`dax_algos.bench.rundir.machine_class`: architecture and the CPU features XLA
-compiles for): training, a chaotic computation, repeats to the bit only within one class,
-so a row stands in for a seed trained again only on a machine of its class.
+(:func:`dax_algos.bench.rundir.machine_class`: the CPU features XLA compiles for):
+training, a chaotic computation, repeats to the bit only within one class, so a row
+stands in for a seed trained again only on a machine of its class.
 
 A row is **stale** when what it was measured on is no longer what the code builds: its
 fingerprint differs from the task's today (built with the run's task overrides), or its
