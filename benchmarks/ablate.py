@@ -145,6 +145,10 @@ VARIANTS = {
             "whole_episodes_d99": {"num_envs": 8, "unroll_length": 12,
                                    "total_env_steps": 1920, "discount": 0.99},
             "lr_high": {"learning_rate": 3e-3},
+            # the object's frame (start-invariant observations and picks) and the curve's
+            # length: on Unfold-Cloth-3 the object frame alone splits the seeds between
+            # unfolding and not
+            "object_frame_long": {"frame": "object", "total_env_steps": 9216},
             # a tenth of the default step (1e-3): on Push-Rope, where APG's and SHAC's
             # budget step walked their policies under the untrained one
             "lr_low": {"learning_rate": 1e-4},
