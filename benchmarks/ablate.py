@@ -149,6 +149,10 @@ VARIANTS = {
             # length: on Unfold-Cloth-3 the object frame alone splits the seeds between
             # unfolding and not
             "object_frame_long": {"frame": "object", "total_env_steps": 9216},
+            # Push-Rope in the object's frame at PPO's default step (its budget takes a
+            # tenth of it so as not to walk the policy off): which side of the goal line a
+            # push must cross depends on where the rope lies, which the frame removes
+            "object_frame_lr_default": {"frame": "object", "learning_rate": 1e-3},
             # a tenth of the default step (1e-3): on Push-Rope, where APG's and SHAC's
             # budget step walked their policies under the untrained one
             "lr_low": {"learning_rate": 1e-4},
