@@ -24,7 +24,8 @@ of the untrained score, and the paired difference from the baseline (same seeds)
 SE: a change is kept only where it is better than the baseline by more than 2 SE.
 Records are appended as each seed finishes; a rerun with the same ``--out`` skips the
 (variant, seed) pairs already there, so a long ablation runs in chunks
-(``--max-minutes``).
+(``--max-minutes``), or in pieces (``--seeds 3-4`` beside ``--seeds 3``, each into its own
+``--out``, their seed records joined after).
 
     python -m benchmarks.ablate apg fold_cloth1 --variants baseline,raw_obs --seeds 3 \\
         --out benchmarks/results/2026-11-27-ablate-apg-fold_cloth1.jsonl
@@ -53,7 +54,7 @@ import dax_tasks
 from benchmarks._report import read_records
 from benchmarks.rl_speed import parse_sets
 from dax_algos import registry
-from dax_algos.bench import execute, learning, provenance, report, rundir
+from dax_algos.bench import execute, grid, learning, provenance, report, rundir
 from dax_algos.bench import rows as rows_mod
 from dax_algos.learner import untrained_key
 from dax_algos.method import BUDGETS
@@ -149,6 +150,8 @@ VARIANTS = {
             # length: on Unfold-Cloth-3 the object frame alone splits the seeds between
             # unfolding and not
             "object_frame_long": {"frame": "object", "total_env_steps": 9216},
+            # and twice that, where the long run's training curve still rises
+            "object_frame_longer": {"frame": "object", "total_env_steps": 18432},
             # Push-Rope in the object's frame at PPO's default step (its budget takes a
             # tenth of it so as not to walk the policy off): which side of the goal line a
             # push must cross depends on where the rope lies, which the frame removes
@@ -520,6 +523,13 @@ def stale_seeds(records: list[dict], method: str, task: str, variant: str, overr
                       {**r, **prov, "method": method, "task": task, "budget": budget}, today))
 
 
+def _seeds(text: str) -> range:
+    try:
+        return grid.parse_seeds(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.ablate",
                                 description=__doc__.split("\n\n")[0])
@@ -527,7 +537,9 @@ def main(argv=None) -> int:
     p.add_argument("task", choices=sorted(dax_tasks.TASKS))
     p.add_argument("--variants", default=None,
                    help="comma-separated (default: all of the method's)")
-    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--seeds", type=_seeds, default=range(3), metavar="K|A-B",
+                   help="seeds 0..K-1, or A..B (a piece run beside another process into "
+                        "its own --out; default 3)")
     p.add_argument("--budget", default="full", choices=BUDGETS)
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="config override for every variant (Python literal)")
@@ -558,7 +570,7 @@ def main(argv=None) -> int:
         return args.max_minutes is not None and time.monotonic() - t0 > 60 * args.max_minutes
 
     if args.baseline_from and "baseline" in names:
-        todo = [s for s in range(args.seeds) if ("baseline", s) not in done]
+        todo = [s for s in args.seeds if ("baseline", s) not in done]
         try:
             records += grid_baseline(args.baseline_from, args.task, args.method, todo,
                                      args.budget, sets, args.baseline_any_machine)
@@ -567,7 +579,7 @@ def main(argv=None) -> int:
         write(out, records)
         done = {(r["variant"], r["seed"]) for r in records}
     for name in names:
-        todo = [s for s in range(args.seeds) if (name, s) not in done]
+        todo = [s for s in args.seeds if (name, s) not in done]
         if not todo:
             continue
         if expired():

@@ -189,6 +189,26 @@ def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monk
         ablate.grid_baseline(stale, "fold_cloth1", "apg", [0, 1], "full", {})
 
 
+def test_seeds_a_to_b_run_those_seeds_only(tmp_path, monkeypatch):
+    """``--seeds 1-2`` trains seeds 1 and 2 (a piece beside another process); ``--seeds 2``
+    seeds 0 and 1."""
+    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
+    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
+    trained = []
+
+    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
+        for seed in seeds:
+            trained.append((variant, seed))
+            yield {**_rec(variant, seed, 0.5), "method": method, "task": task}
+
+    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    for text, want in (("1-2", [1, 2]), ("2", [0, 1])):
+        trained.clear()
+        assert ablate.main(["apg", "fold_cloth1", "--variants", "raw_obs", "--seeds", text,
+                            "--out", str(tmp_path / f"{text}.jsonl")]) == 0
+        assert trained == [("raw_obs", s) for s in want]
+
+
 def test_a_grids_row_of_another_machine_class_is_not_borrowed_unless_asked(tmp_path):
     """Training repeats to the bit only within one machine class: a grid row of another
     class, or of none recorded (rows of before the column), is refused by seed with the two
