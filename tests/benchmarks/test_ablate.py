@@ -147,6 +147,22 @@ def _grid_with_rows(tmp_path, task, method, rows, machine=None):
     return tmp_path
 
 
+def _fake_training(monkeypatch, score):
+    """Make ``ablate.main`` train nothing: each (variant, seed) it would train is appended
+    to the list returned and recorded with ``score(seed)``; no chart, no compilation cache."""
+    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
+    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
+    trained = []
+
+    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
+        for seed in seeds:
+            trained.append((variant, seed))
+            yield {**_rec(variant, seed, score(seed)), "method": method, "task": task}
+
+    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    return trained
+
+
 def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monkeypatch):
     """``--baseline-from GRID``: the grid's rows of today's baseline config and task code
     become the baseline's seed records (score, untrained, curve), only the variants are
@@ -155,17 +171,7 @@ def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monk
     from dax_algos import registry
     from dax_algos.bench import provenance
 
-    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
-    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
-    trained = []
-
-    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
-        for seed in seeds:
-            trained.append((variant, seed))
-            yield {**_rec(variant, seed, 0.6 + 0.01 * seed), "method": method,
-                   "task": task}
-
-    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    trained = _fake_training(monkeypatch, lambda seed: 0.6 + 0.01 * seed)
     today = provenance.config_digest(registry.get("apg").config("full", "fold_cloth1"))
     grid = _grid_with_rows(tmp_path / "grid", "fold_cloth1", "apg",
                            [(0, 0.40, 0.30, today), (1, 0.50, 0.31, today)])
@@ -192,16 +198,7 @@ def test_the_baseline_is_taken_from_a_grids_rows_of_todays_config(tmp_path, monk
 def test_seeds_a_to_b_run_those_seeds_only(tmp_path, monkeypatch):
     """``--seeds 1-2`` trains seeds 1 and 2 (a piece beside another process); ``--seeds 2``
     seeds 0 and 1."""
-    monkeypatch.setattr(ablate.execute, "use_default_compilation_cache", lambda: None)
-    monkeypatch.setattr(ablate, "chart", lambda records, summaries, path: str(path))
-    trained = []
-
-    def fake_run_seeds(task, method, variant, changes, seeds, *rest):
-        for seed in seeds:
-            trained.append((variant, seed))
-            yield {**_rec(variant, seed, 0.5), "method": method, "task": task}
-
-    monkeypatch.setattr(ablate, "run_seeds", fake_run_seeds)
+    trained = _fake_training(monkeypatch, lambda seed: 0.5)
     for text, want in (("1-2", [1, 2]), ("2", [0, 1])):
         trained.clear()
         assert ablate.main(["apg", "fold_cloth1", "--variants", "raw_obs", "--seeds", text,
