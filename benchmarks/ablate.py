@@ -237,8 +237,9 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
     machine_class`; a row that does not record its class is of an unknown one), since
     training repeats to the bit only within one class; otherwise ``ValueError`` says which
     seed and why. ``any_machine`` takes rows of another or unknown class (each record's
-    ``machine_class`` says which, and the table notes the mix). Per-rollout scores and
-    gradient norms are not in a grid row, so those fields are empty."""
+    provenance says which, :func:`record_machine`, and the table notes the mix).
+    Per-rollout scores and gradient norms are not in a grid row, so those fields are
+    empty."""
     grid_dir = Path(grid_dir)
     rows = {int(r["seed"]): r
             for r in rows_mod.latest(rows_mod.read_rows(grid_dir / "results.csv"))
@@ -268,11 +269,10 @@ def grid_baseline(grid_dir, task: str, method_name: str, seeds, budget: str,
                 f"({device}, {here!r}): a seed trained again need not repeat it (training "
                 f"repeats to the bit only within one class); train the baseline here, or "
                 f"pass --baseline-any-machine to borrow it anyway")
-        prov = {k: row.get(k, "") for k in provenance.COLUMNS}
+        prov = {k: row.get(k, "") for k in (*provenance.COLUMNS, "machine")}
         out.append(_json_safe({
             "method": method_name, "task": task, "budget": budget, "variant": "baseline",
             "changes": {}, "sets": sets, "seed": int(seed), "source": f"grid:{grid_dir}",
-            "machine_class": machine,
             "provenance": prov, "status": "ok", "score": float(row["score"]),
             "rollouts": None, "untrained": float(row["untrained_score"]),
             "untrained_rollouts": None, "curve": curves.get(int(seed), []),
@@ -309,7 +309,7 @@ def run_seeds(task: str, method_name: str, variant: str, changes: dict, seeds, b
         rec = {"method": method_name, "task": task, "budget": budget, "variant": variant,
                "changes": changes, "sets": sets, "seed": seed,
                "load_1min": round(os.getloadavg()[0], 2), "provenance": prov,
-               "machine": machine, "machine_class": rundir.machine_class(machine)}
+               "machine": machine}
         t0 = time.perf_counter()
         out = jax.device_get(jax.block_until_ready(
             compiled(jax.random.PRNGKey(seed), params, *data)))
@@ -500,10 +500,12 @@ def render_table(*paths) -> str:
 
 def record_machine(record: dict) -> str:
     """The machine class a seed record ran on (:func:`dax_algos.bench.rundir.
-    machine_class`): its ``machine_class``, else the one of its ``machine`` (records of
-    before the class was recorded), else ``"unknown"``."""
-    if record.get("machine_class"):
-        return record["machine_class"]
+    machine_class`): its provenance's ``machine`` (a grid row's, or
+    :func:`dax_algos.bench.provenance.of_run`'s), else the class of its ``machine`` CPU
+    info (records of before provenance held it), else ``"unknown"``."""
+    machine = (record.get("provenance") or {}).get("machine")
+    if machine:
+        return machine
     return rundir.machine_class(record["machine"]) if record.get("machine") else "unknown"
 
 

@@ -225,12 +225,13 @@ def test_a_grids_row_of_another_machine_class_is_not_borrowed_unless_asked(tmp_p
             ablate.grid_baseline(grid, "fold_cloth1", "apg", [0], "full", {})
     (base,) = ablate.grid_baseline(grid, "fold_cloth1", "apg", [0], "full", {},
                                    any_machine=True)
-    assert base["machine_class"] == "unknown" and base["score"] == 0.40
+    assert ablate.record_machine(base) == "unknown" and base["score"] == 0.40
     out = tmp_path / "mixed.jsonl"
     here = {**_rec("raw_obs", 0, 0.5), "machine": rundir.cpu_info()}
     ablate.write(out, [base, here])
     assert ablate.record_machine(here) == rundir.machine_class()
     assert f"paired difference may compare two machines' runs: `{out.as_posix()}` (2 " \
            f"classes)" in ablate.render_table(out)
-    ablate.write(out, [{**base, "machine_class": rundir.machine_class()}, here])
+    ablate.write(out, [{**base, "provenance": {**base["provenance"],
+                                               "machine": rundir.machine_class()}}, here])
     assert "machine class" not in ablate.render_table(out)

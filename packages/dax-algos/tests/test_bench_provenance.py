@@ -178,3 +178,8 @@ def test_cpu_info_reads_the_first_processors_isa_features_and_the_xla_cap(tmp_pa
     assert rundir.cpu_info(path)["xla_max_isa"] == "AVX2"
     assert rundir.cpu_info(tmp_path / "missing")["cpu_features"] == ["unknown"]
     assert {"cpu_model", "cpu_features", "xla_max_isa"} <= set(rundir.machine_info())
+    # the class a row records: features and cap; none listed is a class, unreadable is not
+    assert rundir.machine_class(rundir.cpu_info(path)) == "avx2+fma+avx512f max_isa=AVX2"
+    assert rundir.machine_class({"cpu_features": [], "xla_max_isa": None}) == "none"
+    assert rundir.machine_class(rundir.cpu_info(tmp_path / "missing")) == "unknown"
+    assert rundir.machine_class({}) == "unknown"

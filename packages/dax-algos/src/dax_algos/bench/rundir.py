@@ -150,10 +150,11 @@ def machine_class(info: Mapping | None = None) -> str:
     XLA cap, if any (``"sse4_1+...+avx512f max_isa=AVX2"``). Two runs of one seed repeat to the bit
     when this agrees (the same code and config); a results row records it (column
     ``machine``) so that a row is only ever compared, seed by seed, with one of its class.
-    ``"unknown"`` where the features could not be read."""
+    ``"unknown"`` where the features could not be read, ``"none"`` where none of
+    :data:`ISA_FEATURES` is there."""
     info = cpu_info() if info is None else info
-    features = list(info.get("cpu_features") or ["unknown"])
-    if features == ["unknown"]:
+    features = info.get("cpu_features")
+    if features is None or features == ["unknown"]:
         return "unknown"
     cap = info.get("xla_max_isa")
     return ("+".join(features) or "none") + (f" max_isa={cap}" if cap else "")
