@@ -186,6 +186,7 @@ def test_a_piece_of_the_seeds_runs_those_seeds_as_the_whole_grid_does(tmp_path):
     (inv,) = json.loads((tmp_path / "piece" / rundir.RUN_FILE).read_text())["invocations"]
     assert "--seeds 1-1" in inv["command"]
 
+
 def test_seeds_are_bounded_and_the_grid_is_enumerated_lazily(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:  # an argument error, before any work
         runner.main(["run", "--tasks", TASK, "--methods", "random", "--seeds",
