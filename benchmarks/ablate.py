@@ -25,7 +25,7 @@ SE: a change is kept only where it is better than the baseline by more than 2 SE
 Records are appended as each seed finishes; a rerun with the same ``--out`` skips the
 (variant, seed) pairs already there, so a long ablation runs in chunks
 (``--max-minutes``), or in pieces (``--seeds 3-4`` beside ``--seeds 3``, each into its own
-``--out``, their seed records joined after).
+``--out``; ``--join PIECE`` then adds a piece's seed records to ``--out``).
 
     python -m benchmarks.ablate apg fold_cloth1 --variants baseline,raw_obs --seeds 3 \\
         --out benchmarks/results/2026-11-27-ablate-apg-fold_cloth1.jsonl
@@ -525,6 +525,29 @@ def stale_seeds(records: list[dict], method: str, task: str, variant: str, overr
                       {**r, **prov, "method": method, "task": task, "budget": budget}, today))
 
 
+def join(records: list[dict], piece, method: str, task: str) -> list[dict]:
+    """The seed records of the ablation file ``piece`` (one run in pieces, each into its
+    own ``--out``) that ``records`` lacks, by (variant, seed). A piece of another method or
+    task, or one whose record of a (variant, seed) that ``records`` holds has another score,
+    is refused (ValueError naming it): those are two runs, not pieces of one."""
+    have = {(r["variant"], r["seed"]): r for r in records}
+    added = []
+    for r in read_records(piece):
+        if (r.get("method"), r.get("task")) != (method, task):
+            raise ValueError(f"{piece}: a record of {r.get('method')} on {r.get('task')}, "
+                             f"not {method} on {task}")
+        key = (r["variant"], r["seed"])
+        if key in have:
+            if have[key].get("score") != r.get("score"):
+                raise ValueError(f"{piece}: variant {key[0]!r} seed {key[1]} scores "
+                                 f"{r.get('score')} there and {have[key].get('score')} in "
+                                 f"--out: two runs of one seed, not pieces of one run")
+            continue
+        have[key] = r
+        added.append(r)
+    return added
+
+
 def _seeds(text: str) -> range:
     try:
         return grid.parse_seeds(text)
@@ -554,6 +577,9 @@ def main(argv=None) -> int:
                         "class (or one the row does not record) too; the table says so")
     p.add_argument("--max-minutes", type=float, default=None,
                    help="start no new seed after this many minutes (resume later)")
+    p.add_argument("--join", action="append", default=[], metavar="PIECE",
+                   help="first add this file's seed records (a piece of the same ablation "
+                        "run with its own --out) that --out lacks; repeatable")
     p.add_argument("--out", required=True, help="JSON lines file (the chart goes beside)")
     args = p.parse_args(argv)
     table = VARIANTS[args.method]
@@ -565,6 +591,13 @@ def main(argv=None) -> int:
     sets = parse_sets(args.set)
     out = Path(args.out)
     records = read_records(out)
+    for piece in args.join:
+        try:
+            records += join(records, piece, args.method, args.task)
+        except ValueError as err:
+            p.error(str(err))
+    if args.join:
+        write(out, records)
     done = {(r["variant"], r["seed"]) for r in records}
     t0 = time.monotonic()
 

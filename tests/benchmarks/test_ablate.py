@@ -206,6 +206,35 @@ def test_seeds_a_to_b_run_those_seeds_only(tmp_path, monkeypatch):
         assert trained == [("raw_obs", s) for s in want]
 
 
+def test_pieces_run_into_their_own_files_are_joined_and_not_retrained(tmp_path, monkeypatch,
+                                                                       capsys):
+    """``--join PIECE`` adds the piece's seed records that ``--out`` lacks (a seed both
+    hold is kept once), so the joined run trains nothing already trained and summarises
+    every seed; a piece that scores a seed otherwise, or is of another task, is refused
+    and ``--out`` is left as it was."""
+    trained = _fake_training(monkeypatch, lambda seed: 0.5)
+    out, piece = tmp_path / "a.jsonl", tmp_path / "b.jsonl"
+    ablate.write(out, [_rec("baseline", 0, 0.4), _rec("raw_obs", 0, 0.45)])
+    ablate.write(piece, [_rec("baseline", 0, 0.4), _rec("baseline", 1, 0.5),
+                         _rec("raw_obs", 1, 0.6)])
+    assert ablate.main(["apg", "fold_cloth1", "--variants", "baseline,raw_obs", "--seeds", "2",
+                        "--join", str(piece), "--out", str(out)]) == 0
+    assert trained == []
+    assert sorted((r["variant"], r["seed"]) for r in ablate.read_records(out)) == [
+        ("baseline", 0), ("baseline", 1), ("raw_obs", 0), ("raw_obs", 1)]
+    (raw,) = [s for s in ablate.summarise(ablate.read_records(out)) if s["variant"] == "raw_obs"]
+    assert raw["seeds"] == [0, 1] and raw["minus_baseline"] == pytest.approx(0.075)
+    before = out.read_text()
+    for bad, says in (([_rec("raw_obs", 1, 0.7)], "raw_obs' seed 1 scores 0.7"),
+                      ([{**_rec("raw_obs", 2, 0.7), "task": "fold_cloth3"}], "fold_cloth3")):
+        ablate.write(piece, bad)
+        with pytest.raises(SystemExit):
+            ablate.main(["apg", "fold_cloth1", "--variants", "raw_obs", "--seeds", "3",
+                         "--join", str(piece), "--out", str(out)])
+        assert says in capsys.readouterr().err
+        assert out.read_text() == before and trained == []
+
+
 def test_a_grids_row_of_another_machine_class_is_not_borrowed_unless_asked(tmp_path):
     """Training repeats to the bit only within one machine class: a grid row of another
     class, or of none recorded (rows of before the column), is refused by seed with the two
