@@ -133,7 +133,8 @@ VARIANTS = {
             "goal_effector": {"align": "goal", "object_weight": 0.0}},
     "ppo": {"baseline": {}, "no_aux": {"aux_weight": 0.0}, "object_frame": {"frame": "object"},
             # a budget read off the curve: on the unfold tasks the cloth budget's 12 updates
-            # end too few episodes to split its curve in fifths (budgets table: too short)
+            # end too few episodes to split its curve in fifths (budgets table: too short);
+            # on the pours (8 envs x 12 steps) 96 updates, 11.5 episodes per env
             "long": {"total_env_steps": 9216},
             # the same 12 updates on 4x the envs: on the cloth the first gradient of the
             # budget's 192 samples is noise (benchmarks.gradient_noise, Fold-Cloth-1 SNR
