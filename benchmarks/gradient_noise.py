@@ -11,7 +11,12 @@ statistics) and for each the policy gradient g_k of the method's first update:
   (at the initial policy the ratio is 1: the advantage-weighted score function);
 * ``apg`` (``--num-envs`` episodes, or windows of ``--unroll`` steps): the gradient of
   APG's objective through the simulator (:func:`dax_algos.rl.apg.make_rollout`), where
-  the batches differ only in their starts.
+  the batches differ only in their starts;
+* ``ild`` (``--num-envs`` episodes, or their first window of ``--unroll`` steps): the
+  gradient of ILD's tracking loss through the simulator
+  (:func:`dax_algos.il.ild.make_window_loss`) towards the task's standard demonstration,
+  moved onto each start as the budget's ``align`` says; the batches differ only in their
+  starts.
 
 Reported, for the whole policy gradient and for its output bias alone (the direction the
 deterministic action's mean moves):
@@ -49,6 +54,7 @@ import numpy as np
 import dax_tasks
 from dax_algos import registry
 from dax_algos.bench import execute, provenance
+from dax_algos.il import demos, ild
 from dax_algos.mlp_policy import ObsNorm, feature_dim
 from dax_algos.rl import apg, gaussian, losses, ppo
 from dax_algos.rl.training import training_params
@@ -61,6 +67,8 @@ def batch_gradients(method: str, task: str, num_envs: int, unroll: int | None,
     gradients (for ``apg`` ``unroll=None`` is the episode)."""
     if method == "apg":
         return _apg_gradients(task, num_envs, unroll, batches, seed, budget)
+    if method == "ild":
+        return _ild_gradients(task, num_envs, unroll, batches, seed, budget)
     env = dax_tasks.make(task)
     config = registry.get("ppo").config(budget, task, num_envs=num_envs,
                                         unroll_length=unroll, minibatches=1)
@@ -108,6 +116,29 @@ def _apg_gradients(task, num_envs, window, batches, seed, budget):
         k_env, k_run = jax.random.split(key)
         obs, state = venv.reset(k_env, params)
         g = jax.grad(lambda p: -rollout(p, norm, obs, state, k_run, params)[0])(policy)
+        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
+        return flat, _output_bias(g)
+
+    return config, *_per_batch(one, batches, seed)
+
+
+def _ild_gradients(task, num_envs, window, batches, seed, budget):
+    env = dax_tasks.make(task)
+    config = registry.get("ild").config(budget, task, num_envs=num_envs,
+                                        **({"window": window} if window else {}))
+    demo = ild.load_data(env, demos.locate(env, ild.demo_spec(config)))
+    venv = dax_tasks.VmapWrapper(env, num_envs)
+    pnet = ild.network(env, config)
+    loss = ild.make_window_loss(env, venv, pnet, config, config.window_for(env))
+    params = env.default_params
+    policy = pnet.init(jax.random.PRNGKey(seed))
+    norm = ObsNorm.create(feature_dim(env))
+
+    @jax.jit
+    def one(key):
+        obs, state = venv.reset(jax.random.split(key, num_envs), params)
+        targets = ild.episode_targets(env, demo, state.physics, params, config)
+        g = jax.grad(lambda p: loss(p, norm, obs, state, params, targets)[0])(policy)
         flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
         return flat, _output_bias(g)
 
@@ -166,7 +197,8 @@ def render_table(path) -> str:
     out += ["", f"{'/'.join(map(str, batches))} independent batches per row (fresh starts), "
             "the initial networks of seed 0, the gradient of the method's first update "
             "(PPO: its clipped objective at ratio 1 with GAE advantages from an "
-            "untrained critic; APG: its objective through the simulator). SNR: |mean "
+            "untrained critic; APG: its objective through the simulator; ILD: its tracking "
+            "loss through the simulator). SNR: |mean "
             "gradient| over one batch's noise (0: no direction above the noise); cosine: "
             "mean over pairs of batches; samples for SNR 1: the batch whose noise variance, "
             "falling as 1 / samples, would equal the squared signal. "
@@ -178,10 +210,11 @@ def render_table(path) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("task", choices=sorted(dax_tasks.TASKS))
-    p.add_argument("--method", choices=("ppo", "apg"), default="ppo")
+    p.add_argument("--method", choices=("ppo", "apg", "ild"), default="ppo")
     p.add_argument("--num-envs", type=int, default=32)
     p.add_argument("--unroll", type=int, default=None,
-                   help="steps per env in a batch (default: 3 for ppo, the episode for apg)")
+                   help="steps per env in a batch (default: 3 for ppo, the episode for apg, "
+                        "the budget's window for ild)")
     p.add_argument("--batches", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="JSON lines file (appended)")
@@ -191,16 +224,17 @@ def main(argv=None):
     execute.use_default_compilation_cache()
     load = round(os.getloadavg()[0], 2)
     t0 = time.perf_counter()
-    unroll = args.unroll if args.unroll or args.method == "apg" else 3
+    unroll = args.unroll if args.unroll or args.method != "ppo" else 3
     config, g, gb = batch_gradients(args.method, args.task, args.num_envs, unroll,
                                     args.batches, args.seed)
-    steps = unroll or dax_tasks.make(args.task).horizon
+    env = dax_tasks.make(args.task)
+    steps = config.window_for(env) if args.method == "ild" else unroll or env.horizon
     samples = args.num_envs * steps
     rec = {"task": args.task, "method": args.method, "num_envs": args.num_envs,
            "unroll_length": steps, "samples_per_batch": samples,
            "batches": args.batches, "seed": args.seed, "load_1min": load,
            "wall_s": round(time.perf_counter() - t0, 1),
-           "provenance": provenance.of_run(dax_tasks.make(args.task), config)}
+           "provenance": provenance.of_run(env, config)}
     for name, arr in (("policy", g), ("output_bias", gb)):
         a = agreement(arr)
         a["samples_for_snr_1"] = (round(samples / a["snr"] ** 2) if a["snr"] else None)

@@ -121,6 +121,10 @@ FILE_KINDS = {
     "planner_objective": ("benchmarks.planner_objective", "render_table",
                           "the planners' score beside what they optimise, per step of the "
                           "grid's episodes (a benchmarks.planner_objective JSONL file)", 1),
+    "transporter_picks": ("benchmarks.transporter_picks", "render_table",
+                          "where the trained Transporter networks pick and place against "
+                          "the expert along their evaluation episodes (a "
+                          "benchmarks.transporter_picks JSONL file)", 1),
     "ild_weighting": ("benchmarks.ild_weighting", "render_table",
                       "ILD's score per state-distance weighting (a benchmarks.ild_weighting "
                       "JSONL file)", 1),

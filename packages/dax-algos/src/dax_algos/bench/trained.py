@@ -131,14 +131,20 @@ def _learner_method(path, method: str) -> LearnerMethod:
     return m
 
 
+def saved_config(path, method: str):
+    """The ``method`` config the policy file ``path`` was trained with (its metadata's;
+    ``ValueError`` naming the file if ``method`` does not learn)."""
+    m = _learner_method(path, method)
+    return _config_from_json(m.config_cls, policy_io.read_meta(path)["config"])
+
+
 def evaluate_trained(path, env, method: str, seed: int) -> dict:
     """Evaluate the policy file ``path`` of ``method`` on ``env`` as the runner evaluated it
     for ``seed`` (the same key, ``config.n_eval`` rollouts, one program per seed), one score
     per rollout: ``{task, method, seed, n_rollouts, mean, se, min, max, finite, scores}``."""
     task = env.spec.name
-    meta = policy_io.read_meta(path)
     m = _learner_method(path, method)
-    config = _config_from_json(m.config_cls, meta["config"])
+    config = saved_config(path, method)
     act, policy = load_trained(path, env, method, config)
     evaluate = m.learner.make_evaluate(env, config, act, per_rollout=True)
     key = jax.random.fold_in(jax.random.PRNGKey(seed), 0)

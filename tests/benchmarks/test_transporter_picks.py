@@ -1,0 +1,35 @@
+"""``benchmarks/transporter_picks.py``'s table: medians over every start and seed, the first
+step apart from the later ones, r_gt per seed then over seeds."""
+
+import json
+
+import pytest
+
+from benchmarks import transporter_picks
+
+
+def _rec(method, seed, pick, place, r_gt):
+    return {"task": "push_rope", "method": method, "seed": seed, "n_starts": len(pick),
+            "pick_err_cm": pick, "place_err_cm": place, "r_gt": r_gt,
+            "expert_r_gt_first": [0.7] * len(pick)}
+
+
+def test_the_table_splits_the_first_step_from_the_later_ones(tmp_path):
+    # two starts x three steps per seed; the first step's picks 1 and 3 cm, later 0.5-5 cm
+    recs = [_rec("transporter", 0, [[1.0, 0.5, 5.0], [3.0, 0.5, 5.0]],
+                 [[2.0, 2.0, 2.0], [2.0, 4.0, 4.0]], [[0.6, 0.7, 0.8], [0.6, 0.7, 0.9]]),
+            _rec("transporter", 1, [[1.0, 0.5, 0.5], [3.0, 5.0, 5.0]],
+                 [[2.0, 2.0, 2.0], [2.0, 4.0, 4.0]], [[0.7, 0.7, 0.6], [0.7, 0.7, 0.7]])]
+    path = tmp_path / "picks.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in recs))
+    table = transporter_picks.render_table(path)
+    (row,) = [line for line in table.splitlines() if line.startswith("| push_rope")]
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[:3] == ["push_rope", "transporter", "2"]
+    assert cells[3] == "2.0 / 2.8"      # medians of [1, 3, 1, 3] and of the 8 later picks
+    assert cells[4] == "50% / 50%"      # picks within 2 cm
+    assert cells[5] == "2.0 / 3.0"
+    first, score = cells[6], cells[7]
+    assert first.startswith("0.650 ± 0.050") and first.endswith("(0.700)")
+    assert score == "0.750 ± 0.100"     # seeds' final means 0.85 and 0.65
+    assert transporter_picks._mean_se([0.85, 0.65]) == pytest.approx((0.75, 0.1))
