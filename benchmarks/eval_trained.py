@@ -38,6 +38,17 @@ def _rows(path: Path) -> dict:
     return {(r.get("task"), r.get("method"), r.get("seed")): r for r in rows}
 
 
+def saved_policies(out, tasks=None, methods=None):
+    """``(path, task, method, seed)`` of each policy a ``dax-bench run`` saved under
+    ``out/policies/<task>/<method>/seed<k>.msgpack``, sorted; only ``tasks`` / ``methods``
+    (sets of names) where given."""
+    for path in sorted(Path(out, "policies").glob("*/*/seed*.msgpack")):
+        task, method = path.parent.parent.name, path.parent.name
+        if (tasks and task not in tasks) or (methods and method not in methods):
+            continue
+        yield path, task, method, int(path.stem.removeprefix("seed").split(".")[0])
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.eval_trained",
                                 description=__doc__.split("\n\n")[0])
@@ -55,11 +66,7 @@ def main(argv=None) -> int:
     tasks = set(args.tasks.split(",")) if args.tasks else None
     methods = set(args.methods.split(",")) if args.methods else None
     rows = _rows(out / "results.csv")
-    for path in sorted(root.glob("*/*/seed*.msgpack")):
-        task, method = path.parent.parent.name, path.parent.name
-        if (tasks and task not in tasks) or (methods and method not in methods):
-            continue
-        seed = int(path.stem.removeprefix("seed").split(".")[0])
+    for path, task, method, seed in saved_policies(out, tasks, methods):
         rec = trained.evaluate_trained(path, dax_tasks.make(task), method, seed)
         row = rows.get((task, method, str(seed)))
         rec["row_score"] = float(row["score"]) if row and row.get("score") else None

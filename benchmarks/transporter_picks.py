@@ -29,12 +29,12 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
 import jax
 import numpy as np
 
 import dax_tasks
+from benchmarks.eval_trained import saved_policies
 from dax_algos.actions import to_action
 from dax_algos.bench import execute, trained
 from dax_algos.il import transporter
@@ -43,7 +43,7 @@ from dax_tasks.io import atomic_write
 METHODS = ("transporter", "transporter_rgb")
 
 
-def first_actions(path, env, method: str, seed: int) -> dict:
+def replay_against_expert(path, env, method: str, seed: int) -> dict:
     """The record of one policy file (see the module docstring)."""
     config = trained.saved_config(path, method)
     act, policy = trained.load_trained(path, env, method, config)
@@ -126,18 +126,13 @@ def main(argv=None) -> int:
     execute.use_default_compilation_cache()
     tasks = set(args.tasks.split(",")) if args.tasks else None
     recs = []
-    for method in METHODS:
-        for path in sorted(Path(args.out, "policies").glob(f"*/{method}/seed*.msgpack")):
-            task = path.parent.parent.name
-            if tasks and task not in tasks:
-                continue
-            seed = int(path.stem.removeprefix("seed").split(".")[0])
-            rec = first_actions(path, dax_tasks.make(task), method, seed)
-            print(json.dumps({k: rec[k] for k in ("task", "method", "seed")}
-                             | {"score": float(np.mean(np.asarray(rec["r_gt"])[:, -1]))}),
-                  file=sys.stderr, flush=True)
-            recs.append(rec)
-            jax.clear_caches()
+    for path, task, method, seed in saved_policies(args.out, tasks, set(METHODS)):
+        rec = replay_against_expert(path, dax_tasks.make(task), method, seed)
+        print(json.dumps({k: rec[k] for k in ("task", "method", "seed")}
+                         | {"score": float(np.mean(np.asarray(rec["r_gt"])[:, -1]))}),
+              file=sys.stderr, flush=True)
+        recs.append(rec)
+        jax.clear_caches()
     atomic_write(args.json, "".join(json.dumps(r) + "\n" for r in recs))
     print(render_table(args.json))
     return 0

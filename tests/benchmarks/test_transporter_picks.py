@@ -33,3 +33,17 @@ def test_the_table_splits_the_first_step_from_the_later_ones(tmp_path):
     assert first.startswith("0.650 ± 0.050") and first.endswith("(0.700)")
     assert score == "0.750 ± 0.100"     # seeds' final means 0.85 and 0.65
     assert transporter_picks._mean_se([0.85, 0.65]) == pytest.approx((0.75, 0.1))
+
+
+def test_saved_policies_are_found_by_task_method_and_seed(tmp_path):
+    from benchmarks.eval_trained import saved_policies
+
+    for rel in ("push_rope/transporter/seed1.msgpack", "push_rope/transporter/seed10.msgpack",
+                "push_rope/ppo/seed0.msgpack", "fold_cloth1/transporter/seed0.msgpack",
+                "push_rope/transporter/seed1.msgpack.json"):
+        (tmp_path / "policies" / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "policies" / rel).write_text("")
+    found = [(t, m, s) for _, t, m, s in saved_policies(tmp_path, {"push_rope"},
+                                                        {"transporter"})]
+    assert found == [("push_rope", "transporter", 1), ("push_rope", "transporter", 10)]
+    assert len(list(saved_policies(tmp_path))) == 4
