@@ -94,8 +94,7 @@ def batch_gradients(method: str, task: str, num_envs: int, unroll: int | None,
         obs, state = venv.reset(k_env, params)
         _, _, data = collect(net, norm, obs, state, k_act, params)
         g = jax.grad(loss)(net["policy"], data)
-        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
-        return flat, _output_bias(g)
+        return _flat_and_bias(g)
 
     return config, *_per_batch(one, batches, seed)
 
@@ -116,8 +115,7 @@ def _apg_gradients(task, num_envs, window, batches, seed, budget):
         k_env, k_run = jax.random.split(key)
         obs, state = venv.reset(k_env, params)
         g = jax.grad(lambda p: -rollout(p, norm, obs, state, k_run, params)[0])(policy)
-        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
-        return flat, _output_bias(g)
+        return _flat_and_bias(g)
 
     return config, *_per_batch(one, batches, seed)
 
@@ -139,8 +137,7 @@ def _ild_gradients(task, num_envs, window, batches, seed, budget):
         obs, state = venv.reset(jax.random.split(key, num_envs), params)
         targets = ild.episode_targets(env, demo, state.physics, params, config)
         g = jax.grad(lambda p: loss(p, norm, obs, state, params, targets)[0])(policy)
-        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(g)])
-        return flat, _output_bias(g)
+        return _flat_and_bias(g)
 
     return config, *_per_batch(one, batches, seed)
 
@@ -149,6 +146,12 @@ def _per_batch(one, batches: int, seed: int):
     keys = jax.random.split(jax.random.PRNGKey(1000 + seed), batches)
     out = [jax.device_get(one(k)) for k in keys]
     return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
+
+
+def _flat_and_bias(grads):
+    """``(flat, bias)``: a policy gradient as one vector and its output bias's part."""
+    flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(grads)])
+    return flat, _output_bias(grads)
 
 
 def _output_bias(grads):

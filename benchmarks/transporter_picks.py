@@ -36,7 +36,7 @@ import numpy as np
 import dax_tasks
 from benchmarks.eval_trained import saved_policies
 from dax_algos.actions import to_action
-from dax_algos.bench import execute, trained
+from dax_algos.bench import episodes, execute, trained
 from dax_algos.il import transporter
 from dax_tasks.io import atomic_write
 
@@ -49,7 +49,7 @@ def replay_against_expert(path, env, method: str, seed: int) -> dict:
     act, policy = trained.load_trained(path, env, method, config)
     oenv = transporter.observation_env(env, config)
     params = env.default_params
-    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 0), config.n_eval)
+    keys = episodes.learner_reset_keys(seed, config.n_eval)
 
     @jax.jit
     def one(key):

@@ -119,11 +119,15 @@ def planner_reset_key(seed: int) -> np.ndarray:
     return np.asarray(jax.random.fold_in(jax.random.PRNGKey(seed), 0))
 
 
-def learner_reset_key(seed: int, n_eval: int) -> np.ndarray:
-    """The start key of a learner's first evaluation rollout for ``seed``
+def learner_reset_keys(seed: int, n_eval: int) -> np.ndarray:
+    """The start keys of a learner's ``n_eval`` evaluation rollouts for ``seed``
     (:func:`dax_algos.learner.make_evaluate` from ``fold_in(PRNGKey(seed), 0)``)."""
-    return np.asarray(jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 0),
-                                       n_eval)[0])
+    return np.asarray(jax.random.split(planner_reset_key(seed), n_eval))
+
+
+def learner_reset_key(seed: int, n_eval: int) -> np.ndarray:
+    """The start key of a learner's first evaluation rollout for ``seed``."""
+    return learner_reset_keys(seed, n_eval)[0]
 
 
 # ----------------------------------------------------------------------------- choosing
