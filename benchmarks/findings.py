@@ -10,7 +10,8 @@ Two tables, each rendered from a grid directory's ``results.csv`` (the rows that
   mean_b > -2 SE`` (``SE = sqrt(SE_a² + SE_b²)``, each the row kind's SE: learners over
   training seeds, planners over episodes). A finding is *reproduced* when every comparison
   holds on every task measured, *not reproduced* when one fails (the failing ones listed
-  with their numbers), *not measured* when no task has both methods' rows.
+  with their numbers and, per task where one fails, the measured reason the finding
+  names for it, :attr:`Finding.why`), *not measured* when no task has both methods' rows.
 * :func:`render_untrained`: for each learner and task, the trained score beside the
   untrained policy's (``untrained_score``, the same seeds and evaluation starts) and their
   paired difference over seeds: *above* (more than 2 SE), *below* (more than 2 SE below,
@@ -37,25 +38,52 @@ ALL = ("pour_water", "pour_soup", "push_rope", "whip_rope", *CLOTH)
 class Finding:
     """A claim of the original benchmark: ``claims`` are ``(a, op, b)`` with ``op`` one of
     ``>`` (a above b by more than 2 SE) and ``>=`` (a not below b by more than 2 SE),
-    checked on each of ``tasks``."""
+    checked on each of ``tasks``. ``why`` is ``((task, reason), ...)``: for a task where a
+    claim has failed, what measurement says why (in words, naming the script or table that
+    measured it; its numbers stay in the result files and the dax-algos README). A failing
+    task without one is shown as having no measured reason."""
 
     name: str
     text: str
     tasks: tuple
     claims: tuple
+    why: tuple = ()
 
+    def reason(self, task: str) -> str:
+        """The measured reason the claim fails on ``task``, or ``"no measured reason"``."""
+        return dict(self.why).get(task, "no measured reason")
+
+
+_ILD_NO_DIRECTION = ("ILD's tracking-loss gradient at its budget's batch is mostly noise "
+                     "across starts (`benchmarks.gradient_noise --method ild`)")
 
 FINDINGS = (
     Finding("F1", "PPO ≥ APG and SHAC on the macro cloth tasks", CLOTH,
             (("ppo", ">=", "apg"), ("ppo", ">=", "shac"))),
     Finding("F2", "APG far above PPO on Whip-Rope, SHAC between", ("whip_rope",),
-            (("apg", ">", "ppo"), ("apg", ">", "shac"), ("shac", ">", "ppo"))),
+            (("apg", ">", "ppo"), ("apg", ">", "shac"), ("shac", ">", "ppo")),
+            (("whip_rope", "SHAC stays at its untrained score; not for want of a gradient "
+              "(its first is as directed as APG's: `benchmarks.gradient_noise --method "
+              "shac`): more updates grow its gradient norm and lower its curve, a smaller "
+              "step holds it flat (`benchmarks.ablate shac whip_rope`)"),)),
     Finding("F3", "Transporter on RGB above Transporter on height maps", MACRO,
-            (("transporter_rgb", ">", "transporter"),)),
+            (("transporter_rgb", ">", "transporter"),),
+            (("push_rope", "the RGB network picks as near the expert's pick but places the "
+              "push's end further off (`benchmarks.transporter_picks`)"),)),
     Finding("F4", "ILD at or above Transporter on the macro tasks", MACRO,
-            (("ild", ">=", "transporter"),)),
+            (("ild", ">=", "transporter"),),
+            (("push_rope", "ILD's tracking-loss gradient points one way whatever the start "
+              "(`benchmarks.gradient_noise --method ild`)"),
+             *((t, _ILD_NO_DIRECTION) for t in CLOTH))),
     Finding("F5", "diff-CEM-MPC ≥ CEM-MPC ≫ diff-MPC", ALL,
-            (("diff_cem_mpc", ">=", "cem_mpc"), ("cem_mpc", ">", "diff_mpc"))),
+            (("diff_cem_mpc", ">=", "cem_mpc"), ("cem_mpc", ">", "diff_mpc")),
+            (("whip_rope", "diff-CEM-MPC under CEM-MPC: both maximise the reward two steps "
+              "ahead, and the better optimiser of that myopic objective ends worse "
+              "(`benchmarks.planner_objective`); CEM-MPC over diff-MPC by less than 2 SE "
+              "of five chaotic episodes, not measured further"),
+             *((t, "a ceiling: CEM-MPC reaches the expert's score on every seed and "
+                "diff-MPC on most (the grid's rows)")
+               for t in ("unfold_cloth1", "unfold_cloth3")))),
 )
 
 
@@ -151,13 +179,19 @@ def findings(rows) -> list[dict]:
 def render_findings(path, budget=None, include_stale=False) -> str:
     """The findings table of the grid at ``path`` (see the module docstring)."""
     rows, budget, note = _grid_rows(path, budget, include_stale)
-    lines = ["| finding | claim | tasks measured | verdict | where it fails (a − b ± SE) |",
-             "|---|---|---|---|---|"]
+    lines = ["| finding | claim | tasks measured | verdict | where it fails (a − b ± SE) "
+             "| why it fails there (measured) |",
+             "|---|---|---|---|---|---|"]
     for f in findings(rows):
         fails = "; ".join(f"{t}: {a} {op} {b}: {d:+.3f} ± {se:.3f}"
                           for t, (a, op, b), (_, d, se) in f["failed"])
+        by_reason: dict = {}  # the failing tasks that share a reason, named together
+        for t in dict.fromkeys(t for t, _, _ in f["failed"]):
+            by_reason.setdefault(f["finding"].reason(t), []).append(t)
+        why = "; ".join(f"{', '.join(ts)}: {r}" for r, ts in by_reason.items())
         lines.append(f"| {f['finding'].name} | {f['finding'].text} | "
-                     f"{', '.join(f['measured']) or '—'} | {f['verdict']} | {fails or '—'} |")
+                     f"{', '.join(f['measured']) or '—'} | {f['verdict']} | {fails or '—'} "
+                     f"| {why or '—'} |")
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
               + note + ". `a > b`: a above "
               "b by more than 2 SE; `a ≥ b`: a not below b by more than 2 SE (SE of the "

@@ -12,6 +12,11 @@ statistics) and for each the policy gradient g_k of the method's first update:
 * ``apg`` (``--num-envs`` episodes, or windows of ``--unroll`` steps): the gradient of
   APG's objective through the simulator (:func:`dax_algos.rl.apg.make_rollout`), where
   the batches differ only in their starts;
+* ``shac`` (``--num-envs`` envs, the first window of ``--unroll`` steps, default the
+  budget's): the gradient of SHAC's actor objective through the simulator
+  (:func:`dax_algos.rl.shac.make_actor_loss`: the reparameterised stochastic policy over
+  the window, closed by the untrained target critic's value), where the batches differ
+  in their starts and their exploration noise;
 * ``ild`` (``--num-envs`` episodes, or their first window of ``--unroll`` steps): the
   gradient of ILD's tracking loss through the simulator
   (:func:`dax_algos.il.ild.make_window_loss`) towards the task's standard demonstration,
@@ -56,7 +61,7 @@ from dax_algos import registry
 from dax_algos.bench import execute, provenance
 from dax_algos.il import demos, ild
 from dax_algos.mlp_policy import ObsNorm, feature_dim
-from dax_algos.rl import apg, gaussian, losses, ppo
+from dax_algos.rl import apg, gaussian, losses, ppo, shac
 from dax_algos.rl.training import training_params
 
 
@@ -69,6 +74,8 @@ def batch_gradients(method: str, task: str, num_envs: int, unroll: int | None,
         return _apg_gradients(task, num_envs, unroll, batches, seed, budget)
     if method == "ild":
         return _ild_gradients(task, num_envs, unroll, batches, seed, budget)
+    if method == "shac":
+        return _shac_gradients(task, num_envs, unroll, batches, seed, budget)
     env = dax_tasks.make(task)
     config = registry.get("ppo").config(budget, task, num_envs=num_envs,
                                         unroll_length=unroll, minibatches=1)
@@ -115,6 +122,29 @@ def _apg_gradients(task, num_envs, window, batches, seed, budget):
         k_env, k_run = jax.random.split(key)
         obs, state = venv.reset(k_env, params)
         g = jax.grad(lambda p: -rollout(p, norm, obs, state, k_run, params)[0])(policy)
+        return _flat_and_bias(g)
+
+    return config, *_per_batch(one, batches, seed)
+
+
+def _shac_gradients(task, num_envs, window, batches, seed, budget):
+    env = dax_tasks.make(task)
+    config = registry.get("shac").config(budget, task, num_envs=num_envs,
+                                         **({"window": window} if window else {}))
+    penv = shac.policy_env(env, config)
+    venv = dax_tasks.training_env(penv, num_envs)
+    pnet, vnet = shac.policy_network(penv, config), shac.value_network(penv, config)
+    loss = shac.make_actor_loss(penv, venv, pnet, vnet, config, config.window_for(penv))
+    params = training_params(env.default_params, config.aux_weight)
+    k_pi, k_v = jax.random.split(jax.random.PRNGKey(seed))
+    policy, target = pnet.init(k_pi), vnet.init(k_v)
+    norm = ObsNorm.create(feature_dim(penv))
+
+    @jax.jit
+    def one(key):
+        k_env, k_run = jax.random.split(key)
+        obs, state = venv.reset(k_env, params)
+        g = jax.grad(lambda p: loss(p, target, norm, obs, state, k_run, params)[0])(policy)
         return _flat_and_bias(g)
 
     return config, *_per_batch(one, batches, seed)
@@ -200,8 +230,9 @@ def render_table(path) -> str:
     out += ["", f"{'/'.join(map(str, batches))} independent batches per row (fresh starts), "
             "the initial networks of seed 0, the gradient of the method's first update "
             "(PPO: its clipped objective at ratio 1 with GAE advantages from an "
-            "untrained critic; APG: its objective through the simulator; ILD: its tracking "
-            "loss through the simulator). SNR: |mean "
+            "untrained critic; APG: its objective through the simulator; SHAC: its actor "
+            "objective through the simulator, closed by its untrained critic; ILD: its "
+            "tracking loss through the simulator). SNR: |mean "
             "gradient| over one batch's noise (0: no direction above the noise); cosine: "
             "mean over pairs of batches; samples for SNR 1: the batch whose noise variance, "
             "falling as 1 / samples, would equal the squared signal. "
@@ -213,11 +244,11 @@ def render_table(path) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("task", choices=sorted(dax_tasks.TASKS))
-    p.add_argument("--method", choices=("ppo", "apg", "ild"), default="ppo")
+    p.add_argument("--method", choices=("ppo", "apg", "shac", "ild"), default="ppo")
     p.add_argument("--num-envs", type=int, default=32)
     p.add_argument("--unroll", type=int, default=None,
                    help="steps per env in a batch (default: 3 for ppo, the episode for apg, "
-                        "the budget's window for ild)")
+                        "the budget's window for shac and ild)")
     p.add_argument("--batches", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="JSON lines file (appended)")
@@ -231,7 +262,8 @@ def main(argv=None):
     config, g, gb = batch_gradients(args.method, args.task, args.num_envs, unroll,
                                     args.batches, args.seed)
     env = dax_tasks.make(args.task)
-    steps = config.window_for(env) if args.method == "ild" else unroll or env.horizon
+    steps = (config.window_for(env) if args.method in ("shac", "ild")
+             else unroll or env.horizon)
     samples = args.num_envs * steps
     rec = {"task": args.task, "method": args.method, "num_envs": args.num_envs,
            "unroll_length": steps, "samples_per_batch": samples,

@@ -29,6 +29,9 @@ def test_findings_follow_the_two_standard_error_rule(tmp_path):
         # F1 on fold_cloth1: PPO 0.40 vs APG 0.50 (SE 0.01 / sqrt(3) each): PPO >= APG fails
         ("fold_cloth1", "ppo"): [0.39, 0.40, 0.41], ("fold_cloth1", "apg"): [0.49, 0.50, 0.51],
         ("fold_cloth1", "shac"): [0.39, 0.40, 0.41],
+        # F3 on push_rope: RGB 0.80 below height maps 0.85: fails where a reason is named
+        ("push_rope", "transporter_rgb"): [0.79, 0.80, 0.81],
+        ("push_rope", "transporter"): [0.84, 0.85, 0.86],
     })
     out = {f["finding"].name: f for f in findings.findings(
         findings._grid_rows(grid, include_stale=True)[0])}
@@ -37,9 +40,16 @@ def test_findings_follow_the_two_standard_error_rule(tmp_path):
     ((task, claim, (holds, diff, se)),) = out["F1"]["failed"]
     assert (task, claim, holds) == ("fold_cloth1", ("ppo", ">=", "apg"), False)
     assert diff == pytest.approx(-0.10) and se == pytest.approx(0.01 * (2 / 3) ** 0.5)
-    assert out["F3"]["verdict"] == "not measured"
+    assert out["F3"]["verdict"] == "not reproduced" and out["F4"]["verdict"] == "not measured"
     table = findings.render_findings(grid, include_stale=True)
     assert "fold_cloth1: ppo >= apg: -0.100 ± 0.008" in table, table
+    # each failing task's measured reason, or that none was measured, in the last column
+    f1, f2, f3 = (next(line for line in table.splitlines() if line.startswith(f"| {n} "))
+                  for n in ("F1", "F2", "F3"))
+    assert f1.endswith("| fold_cloth1: no measured reason |"), f1
+    assert f2.endswith("| — |"), f2
+    assert f3.endswith(f"| push_rope: {findings.FINDINGS[2].reason('push_rope')} |"), f3
+    assert "transporter_picks" in f3 and "no measured reason" not in f3
 
 
 def test_a_tie_within_two_standard_errors_is_at_or_above_not_above(tmp_path):
