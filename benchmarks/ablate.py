@@ -90,6 +90,9 @@ VARIANTS = {
             # and twice that: on Pour-Water (100-step episodes) `long` is 3.5 training
             # episodes per env whose final scores still rise from one to the next
             "longer": {"total_env_steps": 2800},
+            # Whip-Rope: the fewest updates whose curve splits in fifths (benchmarks.budgets:
+            # 10 updates that end an episode; 4 envs x 10 steps end one per env every 5)
+            "longest": {"total_env_steps": 2000},
             # Push-Rope: the first gradient of 4 episodes has SNR 0.5 (benchmarks.
             # gradient_noise: about 96 samples for SNR 1), so 16 episodes per update, on
             # the final-step objective that measured better there; the same 7 updates
