@@ -20,6 +20,9 @@ machine) and whether the curve has flattened by its end:
   when it is not (the curve cannot tell). A run with fewer than 10 scored updates cannot
   be split in fifths: *too short*; one in which no training episode reached its end
   (fewer env steps per env than the horizon) has no score at all: *no episode ended*.
+  For these two the table gives what reading the curve would take (:func:`steps_to_read`):
+  the env steps per seed at which every env ends :data:`MIN_UPDATES` episodes, and the
+  training wall time that would cost at the row's own rate.
 
 A learner without environment steps (Transporter, trained on demonstrations only) has no
 curve in the file; its row gives its Adam steps and wall time and the verdict ``no
@@ -47,6 +50,25 @@ def _fifths_delta(scores) -> float:
         return math.nan
     k = len(ys) // 5
     return float(ys[-k:].mean() - ys[-2 * k:-k].mean())
+
+
+def steps_to_read(task: str, method: str, budget: str, steps_per_update: float) -> int | None:
+    """Env steps per training seed at which a curve of ``method``'s ``budget`` config on
+    ``task``, at ``steps_per_update`` env steps per update (all envs), has
+    :data:`MIN_UPDATES` scored updates. An update of ``u = steps_per_update / num_envs``
+    steps per env ends an episode in every env when ``u`` reaches the horizon ``h``, else
+    in a fraction ``u / h`` of the updates: ``ceil(MIN_UPDATES * max(1, h / u))`` updates.
+    ``None`` for a method that trains without envs (its config has no ``num_envs``)."""
+    import dax_tasks
+    from dax_algos import registry
+
+    num_envs = getattr(registry.get(method).config(budget, task), "num_envs", None)
+    if num_envs is None or not steps_per_update > 0:
+        return None
+    per_env = steps_per_update / num_envs
+    updates = math.ceil(MIN_UPDATES * max(1.0, dax_tasks.get_spec(task).horizon / per_env)
+                        - 1e-9)
+    return round(updates * steps_per_update)
 
 
 def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], str, str]:
@@ -96,11 +118,19 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
                 verdict = "rising" if d_mean > 0 else "falling"
             else:
                 verdict = "noisy"
-            out.append(dict(task=task, method=method, env_steps=max(steps, default=0),
-                            updates=max(updates, default=0),
-                            wall_s=float(np.mean(walls)) if walls else math.nan,
+            env_steps = max(steps, default=0)
+            wall = float(np.mean(walls)) if walls else math.nan
+            n_updates = max(updates, default=0)
+            to_read = (steps_to_read(task, method, budget, env_steps / n_updates)
+                       if verdict in ("too short", "no episode ended") and n_updates
+                       else None)
+            out.append(dict(task=task, method=method, env_steps=env_steps,
+                            updates=n_updates, wall_s=wall,
                             delta=d_mean, delta_se=d_se, eval_se=eval_se, n=n,
-                            verdict=verdict, curve=curve_file if by_seed else None))
+                            verdict=verdict, curve=curve_file if by_seed else None,
+                            to_read=to_read,
+                            to_read_wall_s=(wall * to_read / env_steps
+                                            if to_read and env_steps else None)))
     return out, budget, note
 
 
@@ -110,15 +140,19 @@ def render_table(path, budget=None, include_stale=False) -> str:
     if not rows:
         raise ValueError(f"{path}: no learner rows in it")
     lines = ["| task | method | env steps / seed | updates | training wall (s) | "
-             "Δ last fifth (± SE) | eval SE | verdict | curve |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "Δ last fifth (± SE) | eval SE | verdict | to read: env steps / seed "
+             "(training wall, s) | curve |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         delta = ("—" if not math.isfinite(r["delta"]) else
                  f"{r['delta']:+.3f} ± {0.0 if math.isnan(r['delta_se']) else r['delta_se']:.3f}")
+        to_read = ("—" if r["to_read"] is None else f"{r['to_read']:,} ("
+                   + ("?" if r["to_read_wall_s"] is None or math.isnan(r["to_read_wall_s"])
+                      else f"{r['to_read_wall_s']:,.0f}") + ")")
         lines.append(
             f"| {r['task']} | {r['method']} | {r['env_steps']:.0f} | {r['updates']} | "
             f"{r['wall_s']:.0f} | {delta} | {r['eval_se']:.3f} | {r['verdict']} | "
-            f"{'`' + r['curve'] + '`' if r['curve'] else '—'} |")
+            f"{to_read} | {'`' + r['curve'] + '`' if r['curve'] else '—'} |")
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
               + note
               + f", {rows[0]['n']} training seeds per row where all ran. Curve: per update, "
@@ -127,7 +161,10 @@ def render_table(path, budget=None, include_stale=False) -> str:
               "± SE over seeds; flat when |Δ| is below the SE of the evaluation score (over "
               "seeds), rising or falling when |Δ| is also above 2 SE of Δ, else noisy; wall "
               "time: training only, mean over seeds, on "
-              "the grid's machine (run.json)."]
+              "the grid's machine (run.json). To read: for a curve too short to split "
+              f"(fewer than {MIN_UPDATES} updates that end an episode), the env steps per "
+              f"seed at which each env ends {MIN_UPDATES} episodes, and its training wall "
+              "time at the row's own rate (an estimate, not a run)."]
     return "\n".join(lines) + "\n"
 
 

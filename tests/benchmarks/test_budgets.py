@@ -50,6 +50,21 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
     assert out["shac"]["delta"] == pytest.approx(0.1) and out["shac"]["delta_se"] == (
         pytest.approx(0.1))
     assert out["ppo"]["verdict"] == "too short" and math.isnan(out["ppo"]["delta"])
+    # what reading PPO's curve would take: at this row's 12 env steps per update (fewer
+    # than one per env of PPO's registry envs: a fraction of the updates end an episode)
+    # 10 episode ends per env over the horizon, at its 2 s per update
+    import dax_tasks
+    from dax_algos import registry
+    num_envs = registry.get("ppo").config("full", "fold_cloth1").num_envs
+    updates = math.ceil(10 * dax_tasks.get_spec("fold_cloth1").horizon * num_envs / 12)
+    steps = 12 * updates
+    assert out["ppo"]["to_read"] == steps
+    assert out["ppo"]["to_read_wall_s"] == pytest.approx(2.0 * updates)
+    # an update longer than the episode ends one in every env: 10 updates read
+    assert budgets.steps_to_read("fold_cloth1", "ppo", "full", 1000.0 * num_envs) == (
+        10_000 * num_envs)
+    assert out["apg"]["to_read"] is None and out["transporter"]["to_read"] is None
+    assert out["transporter_rgb"]["to_read"] is None  # (trains without envs)
     assert out["transporter"]["verdict"] == "no curve"
     assert out["transporter_rgb"]["verdict"] == "no episode ended"
     assert out["transporter"]["wall_s"] == pytest.approx(5.0)
@@ -57,6 +72,7 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
         240, 20, 40.0)
     table = budgets.render_table(grid, include_stale=True)
     assert "| fold_cloth1 | ild | 240 | 20 | 40 | +0.040 ± 0.000 |" in table, table
+    assert f"| too short | {steps:,} ({2.0 * updates:,.0f}) |" in table, table
     assert "rising" in table and "2 training seeds" in table
 
 
