@@ -104,6 +104,9 @@ VARIANTS = {
              "long": {"total_env_steps": 1600},
              # and a smaller actor step (the raw gradient norm grows as `long`'s curve falls)
              "long_lr_low": {"total_env_steps": 1600, "actor_learning_rate": 2e-4},
+             # the unfold tasks' curve, too short at 60 updates of 8 envs x window 1 (6
+             # episode ends per env), read: 100 updates end 10 (benchmarks.budgets: to read)
+             "steps_800": {"total_env_steps": 800},
              # a tenth of the actor step: where the gradient's direction is mostly noise
              # (Push-Rope), a clipped Adam step of full size is a random walk (hypothesis 2)
              "lr_low": {"actor_learning_rate": 1e-4},
