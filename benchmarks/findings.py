@@ -69,7 +69,14 @@ FINDINGS = (
     Finding("F3", "Transporter on RGB above Transporter on height maps", MACRO,
             (("transporter_rgb", ">", "transporter"),),
             (("push_rope", "the RGB network picks as near the expert's pick but places the "
-              "push's end further off (`benchmarks.transporter_picks`)"),)),
+              "push's end further off (`benchmarks.transporter_picks`)"),
+             ("fold_cloth1", "the RGB network picks nearer the expert's first pick and makes "
+              "the better first fold (`benchmarks.transporter_picks`); both networks' later "
+              "actions, off the demonstrations' path, undo part of it, leaving a gap in the "
+              "finding's direction under 2 SE"),
+             ("fold_cloth3", "the RGB network follows the expert's first two folds more "
+              "closely (`benchmarks.transporter_picks`) and scores higher on every seed: "
+              "over 2 SE paired by seed, under it by this table's unpaired rule"))),
     Finding("F4", "ILD at or above Transporter on the macro tasks", MACRO,
             (("ild", ">=", "transporter"),),
             (("push_rope", "ILD's tracking-loss gradient points one way whatever the start "

@@ -84,7 +84,9 @@ def _mean_se(values) -> tuple[float, float]:
 def render_table(path) -> str:
     """Per task and method: the median pick and place error at the first step and over
     the later steps (every start of every seed), the share of picks within 2 cm of the
-    expert's, and the r_gt after the first and the last action (mean ± SE over seeds)."""
+    expert's, the median pick error and the mean r_gt at each step (where along the
+    episode the two networks part), and the r_gt after the first and the last action
+    (mean ± SE over seeds)."""
     from benchmarks._report import file_date, read_result
 
     path, recs = read_result(path)
@@ -93,18 +95,23 @@ def render_table(path) -> str:
         groups.setdefault((r["task"], r["method"]), []).append(r)
     out = ["| task | method | seeds | pick off the expert's [cm]: first step / later "
            "(median) | picks within 2 cm: first / later | place off [cm]: first / later | "
+           "pick off [cm], per step (median) | r_gt after each step (mean) | "
            "r_gt after the first action (expert's) | score |",
-           "|---|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|---|---|"]
     for (task, method), rs in sorted(groups.items()):
         pick = np.concatenate([np.asarray(r["pick_err_cm"]) for r in rs])
         place = np.concatenate([np.asarray(r["place_err_cm"]) for r in rs])
         first = _mean_se([np.mean(np.asarray(r["r_gt"])[:, 0]) for r in rs])
         score = _mean_se([np.mean(np.asarray(r["r_gt"])[:, -1]) for r in rs])
         expert = np.mean([np.mean(r["expert_r_gt_first"]) for r in rs])
+        per_step = np.mean([np.mean(np.asarray(r["r_gt"]), axis=0) for r in rs], axis=0)
         out.append(f"| {task} | {method} | {len(rs)} | {np.median(pick[:, 0]):.1f} / "
                    f"{np.median(pick[:, 1:]):.1f} | {np.mean(pick[:, 0] < 2):.0%} / "
                    f"{np.mean(pick[:, 1:] < 2):.0%} | {np.median(place[:, 0]):.1f} / "
-                   f"{np.median(place[:, 1:]):.1f} | {first[0]:.3f} ± {first[1]:.3f} "
+                   f"{np.median(place[:, 1:]):.1f} | "
+                   + " / ".join(f"{x:.1f}" for x in np.median(pick, axis=0)) + " | "
+                   + " / ".join(f"{x:.3f}" for x in per_step) + " | "
+                   f"{first[0]:.3f} ± {first[1]:.3f} "
                    f"({expert:.3f}) | {score[0]:.3f} ± {score[1]:.3f} |")
     out += ["", "Each trained policy of the grid replayed on its own evaluation episodes (20 "
             "starts per seed, its own actions), its pick and place at every step against "

@@ -29,7 +29,11 @@ def test_the_table_splits_the_first_step_from_the_later_ones(tmp_path):
     assert cells[3] == "2.0 / 2.8"      # medians of [1, 3, 1, 3] and of the 8 later picks
     assert cells[4] == "50% / 50%"      # picks within 2 cm
     assert cells[5] == "2.0 / 3.0"
-    first, score = cells[6], cells[7]
+    # per step: the medians of [1, 3, 1, 3], [.5, .5, .5, 5] and [5, 5, .5, 5]; r_gt each
+    # seed's mean, then their mean
+    assert cells[6] == "2.0 / 0.5 / 5.0"
+    assert cells[7] == "0.650 / 0.700 / 0.750"
+    first, score = cells[8], cells[9]
     assert first.startswith("0.650 ± 0.050") and first.endswith("(0.700)")
     assert score == "0.750 ± 0.100"     # seeds' final means 0.85 and 0.65
     assert transporter_picks._mean_se([0.85, 0.65]) == pytest.approx((0.75, 0.1))
