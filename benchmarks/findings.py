@@ -54,7 +54,7 @@ class Finding:
         return dict(self.why).get(task, "no measured reason")
 
 
-_ILD_NO_DIRECTION = ("ILD's tracking-loss gradient at its budget's batch is mostly noise "
+_ILD_NOISE = ("ILD's tracking-loss gradient at its budget's batch is mostly noise "
                      "across starts (`benchmarks.gradient_noise --method ild`)")
 
 FINDINGS = (
@@ -81,7 +81,7 @@ FINDINGS = (
             (("ild", ">=", "transporter"),),
             (("push_rope", "ILD's tracking-loss gradient points one way whatever the start "
               "(`benchmarks.gradient_noise --method ild`)"),
-             *((t, _ILD_NO_DIRECTION) for t in CLOTH))),
+             *((t, _ILD_NOISE) for t in CLOTH))),
     Finding("F5", "diff-CEM-MPC ≥ CEM-MPC ≫ diff-MPC", ALL,
             (("diff_cem_mpc", ">=", "cem_mpc"), ("cem_mpc", ">", "diff_mpc")),
             (("whip_rope", "diff-CEM-MPC under CEM-MPC: both maximise the reward two steps "
