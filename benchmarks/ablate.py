@@ -154,9 +154,10 @@ VARIANTS = {
                                    "total_env_steps": 1920, "discount": 0.99},
             "lr_high": {"learning_rate": 3e-3},
             # the cloth curves too short to read (benchmarks.budgets: to read): 10 episode
-            # ends per env of 64 envs x 3 steps, Fold-Cloth-3 (horizon 4) and Unfold-Cloth-1
-            # (horizon 10)
+            # ends per env of 64 envs x 3 steps, Fold-Cloth-3 (horizon 4), Fold-T-shirt (5)
+            # and Unfold-Cloth-1 (10)
             "steps_2688": {"total_env_steps": 2688},
+            "steps_3264": {"total_env_steps": 3264},
             "steps_6528": {"total_env_steps": 6528},
             # the object's frame (start-invariant observations and picks) and the curve's
             # length: on Unfold-Cloth-3 the object frame alone splits the seeds between
