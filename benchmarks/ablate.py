@@ -4,7 +4,9 @@ chart).
 
 Each variant is the method's registry budget (``--budget``) with the variant's config
 fields changed (:data:`VARIANTS`, each named after the hypothesis it tests; ``--set``
-changes a field in every variant, the baseline included). Per (variant, seed) one record:
+changes a field in every variant, the baseline included; every learner also has
+``to_read``, the budget run until each env has ended 10 episodes, computed per task by
+:func:`to_read_variant`). Per (variant, seed) one record:
 
 * ``score``: the trained policy's evaluation, the mean final-step r_gt of ``n_eval``
   rollouts from the runner's evaluation starts for that seed, and ``rollouts`` each one;
@@ -561,6 +563,27 @@ def join(records: list[dict], piece, method: str, task: str) -> list[dict]:
     return added
 
 
+#: The variant every learner has on every task, its config fields computed by
+#: :func:`to_read_variant`: the budget trained until every env has ended
+#: :data:`benchmarks.budgets.MIN_UPDATES` episodes, to read a curve the budget table calls
+#: too short. The ``steps_N`` variants above are the same run on the tasks they name,
+#: under the names the result files of its first reads record.
+TO_READ = "to_read"
+
+
+def to_read_variant(method: str, task: str, budget: str, sets: dict) -> dict:
+    """The config fields of :data:`TO_READ` for ``method``'s ``budget`` config on ``task``
+    with ``sets``: ``total_env_steps`` from :func:`benchmarks.budgets.steps_to_read` at the
+    config's own env steps per update (those of a config asked for one env step, which
+    every learner rounds up to one update)."""
+    from benchmarks.budgets import steps_to_read
+
+    m = registry.get(method)
+    one = m.config(budget, task, **{**sets, "total_env_steps": 1})
+    per_update = m.learner.train_env_steps(dax_tasks.make(task), one)
+    return {"total_env_steps": steps_to_read(task, method, budget, per_update, **sets)}
+
+
 def _seeds(text: str) -> range:
     try:
         return grid.parse_seeds(text)
@@ -595,13 +618,14 @@ def main(argv=None) -> int:
                         "run with its own --out) that --out lacks; repeatable")
     p.add_argument("--out", required=True, help="JSON lines file (the chart goes beside)")
     args = p.parse_args(argv)
-    table = VARIANTS[args.method]
+    sets = parse_sets(args.set)
+    table = {**VARIANTS[args.method],
+             TO_READ: to_read_variant(args.method, args.task, args.budget, sets)}
     names = [n.strip() for n in (args.variants or ",".join(table)).split(",")]
     unknown = [n for n in names if n not in table]
     if unknown:
         p.error(f"unknown variant(s) {unknown}; valid for {args.method}: {', '.join(table)}")
     execute.use_default_compilation_cache()
-    sets = parse_sets(args.set)
     out = Path(args.out)
     records = read_records(out)
     for piece in args.join:

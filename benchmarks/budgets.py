@@ -52,17 +52,20 @@ def _fifths_delta(scores) -> float:
     return float(ys[-k:].mean() - ys[-2 * k:-k].mean())
 
 
-def steps_to_read(task: str, method: str, budget: str, steps_per_update: float) -> int | None:
+def steps_to_read(task: str, method: str, budget: str, steps_per_update: float,
+                  **overrides) -> int | None:
     """Env steps per training seed at which a curve of ``method``'s ``budget`` config on
-    ``task``, at ``steps_per_update`` env steps per update (all envs), has
-    :data:`MIN_UPDATES` scored updates. An update of ``u = steps_per_update / num_envs``
-    steps per env ends an episode in every env when ``u`` reaches the horizon ``h``, else
-    in a fraction ``u / h`` of the updates: ``ceil(MIN_UPDATES * max(1, h / u))`` updates.
+    ``task`` (with config ``overrides``), at ``steps_per_update`` env steps per update
+    (all envs), has :data:`MIN_UPDATES` scored updates. An update of
+    ``u = steps_per_update / num_envs`` steps per env ends an episode in every env when
+    ``u`` reaches the horizon ``h``, else in a fraction ``u / h`` of the updates:
+    ``ceil(MIN_UPDATES * max(1, h / u))`` updates.
     ``None`` for a method that trains without envs (its config has no ``num_envs``)."""
     import dax_tasks
     from dax_algos import registry
 
-    num_envs = getattr(registry.get(method).config(budget, task), "num_envs", None)
+    num_envs = getattr(registry.get(method).config(budget, task, **overrides), "num_envs",
+                       None)
     if num_envs is None or not steps_per_update > 0:
         return None
     per_env = steps_per_update / num_envs

@@ -264,3 +264,23 @@ def test_a_grids_row_of_another_machine_class_is_not_borrowed_unless_asked(tmp_p
     ablate.write(out, [{**base, "provenance": {**base["provenance"],
                                                "machine": rundir.machine_class()}}, here])
     assert "machine class" not in ablate.render_table(out)
+
+
+@pytest.mark.parametrize("method,task,named", [("shac", "unfold_cloth1", "steps_800"),
+                                               ("ppo", "fold_cloth3", "steps_2688"),
+                                               ("ppo", "unfold_cloth1", "steps_6528"),
+                                               ("apg", "whip_rope", "longest")])
+def test_to_read_is_the_run_the_named_budget_reads_took(method, task, named):
+    """``to_read``, computed from the config, is the config the first budget reads ran
+    under their own names; with a ``--set`` that halves the envs per update it asks for
+    the same updates per env, so half the env steps."""
+    from benchmarks.budgets import MIN_UPDATES
+
+    from dax_algos import registry
+
+    assert ablate.to_read_variant(method, task, "full", {}) == ablate.VARIANTS[method][named]
+    cfg = registry.get(method).config("full", task)
+    half = {"num_envs": cfg.num_envs // 2}
+    steps = ablate.to_read_variant(method, task, "full", half)["total_env_steps"]
+    assert steps * 2 == ablate.VARIANTS[method][named]["total_env_steps"]
+    assert steps >= MIN_UPDATES * cfg.num_envs // 2  # at least one step per env per update
