@@ -64,7 +64,7 @@ def test_fingerprint_covers_every_spec_field_and_the_code(monkeypatch):
                   dataclasses.replace(base, obs_stride=2)):
         assert base.fingerprint() != other.fingerprint(), other
     before = base.fingerprint()
-    monkeypatch.setattr(spec_module, "code_digest", lambda: "other code")
+    monkeypatch.setattr(spec_module, "code_digest", lambda module=None: "other code")
     assert base.fingerprint() != before, "the fingerprint ignores the source code"
 
 
@@ -77,6 +77,84 @@ def test_the_code_digest_reads_every_module_of_both_packages():
     for module in ("dax_tasks/tasks/cloth.py", "dax_tasks/tasks/_cloth.py",
                    "dax_tasks/core/spec.py", "dax_physics/cloth/sim.py"):
         assert module in names, module
+
+
+def test_a_tasks_fingerprint_leaves_out_only_the_other_kinds_files():
+    """A cloth task's fingerprint does not read the MPM solver nor the pour and rope
+    modules, a pour's neither the cloth's nor the ropes', a rope's not the pour's; shared
+    code (dax_tasks.core, the colliders, the checkpointed scan) counts for all, and a task
+    whose scene is defined outside dax_tasks counts every file."""
+    from dax_tasks.core.spec import code_files, scene_module
+
+    def names(task):
+        module = scene_module(dax_tasks.get_spec(task))
+        return {src.relative_to(package.parent).as_posix()
+                for package, src in code_files(module)}
+
+    every = {src.relative_to(package.parent).as_posix() for package, src in code_files()}
+    cloth, pour, push = names("fold_cloth1"), names("pour_water"), names("push_rope")
+    shared = {"dax_tasks/core/env.py", "dax_tasks/core/spec.py", "dax_physics/scan.py",
+              "dax_physics/colliders.py", "dax_tasks/viz/images.py"}
+    assert shared <= cloth & pour & push
+    assert {"dax_physics/cloth/sim.py", "dax_tasks/tasks/cloth.py"} <= cloth - pour - push
+    assert {"dax_physics/mpm/substep.py"} <= (pour & push) - cloth
+    assert "dax_tasks/tasks/pour.py" in pour - push - cloth
+    assert "dax_tasks/tasks/_rope.py" in (push & names("whip_rope")) - pour - cloth
+    assert names("unfold_cloth3") == cloth and names("pour_soup") == pour
+    assert code_files("my_lab.tasks") == code_files() and len(every) > len(cloth | pour)
+
+
+
+def _reached(task):
+    """Files of dax_tasks and dax_physics (paths from the packages' parent) with a
+    function called while building ``task``, resetting it, tracing its step's gradient
+    with respect to the action (which traces the step) and its expert's action."""
+    import sys
+    from pathlib import Path
+
+    import jax
+    import jax.numpy as jnp
+
+    import dax_physics
+
+    roots = [Path(dax_tasks.__file__).resolve().parent,
+             Path(dax_physics.__file__).resolve().parent]
+    seen = set()
+
+    def profile(frame, event, arg):
+        if event == "call":
+            name = frame.f_code.co_filename
+            for root in roots:
+                if name.startswith(str(root)):
+                    seen.add(Path(name).relative_to(root.parent).as_posix())
+
+    sys.setprofile(profile)
+    try:  # traced, never run: shapes stand in for the arrays
+        env = dax_tasks.make(task)
+        params = env.default_params
+        _, state = jax.eval_shape(env.reset, jax.random.PRNGKey(0), params)
+
+        def reward(action, state):
+            return env.step(state, action, params)[2]
+
+        jax.jit(jax.grad(reward)).lower(jnp.zeros(env.spec.action_dim), state)
+        jax.jit(env.expert_action).lower(state, params)
+    finally:
+        sys.setprofile(None)
+    return seen
+
+
+@pytest.mark.parametrize("task", ["fold_cloth1", "pour_water", "push_rope", "whip_rope"])
+def test_a_tasks_program_reaches_only_the_files_its_fingerprint_reads(task):
+    """What makes leaving files out of a fingerprint safe: the task's program calls no
+    function of a file its fingerprint does not digest (one task per scene module)."""
+    from dax_tasks.core.spec import code_files, scene_module
+
+    reached = _reached(task)
+    digested = {src.relative_to(package.parent).as_posix()
+                for package, src in code_files(scene_module(dax_tasks.get_spec(task)))}
+    assert "dax_tasks/core/env.py" in reached  # (the profile saw the program)
+    assert reached <= digested, sorted(reached - digested)
 
 
 def test_the_code_digest_follows_the_program_not_its_comments_or_docstrings():

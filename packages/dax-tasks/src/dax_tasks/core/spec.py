@@ -8,8 +8,8 @@ kind. Changing a field recompiles. Every number that may change without recompil
 
 A spec serialises itself (:meth:`TaskSpec.to_json` / :meth:`TaskSpec.from_json`: plain
 JSON, no module paths) and fingerprints itself (:meth:`TaskSpec.fingerprint`: the spec
-and the source code of dax-tasks and dax-physics, so a goal or a demonstration made by
-other code is never mistaken for this one's).
+and the source code of dax-tasks and dax-physics its program can reach, so a goal or a
+demonstration made by other code is never mistaken for this one's).
 """
 
 from __future__ import annotations
@@ -123,8 +123,9 @@ class TaskSpec:
 
     def fingerprint(self) -> str:
         """12 hex digits identifying the task program: every field of the spec (with the
-        scene) and the source code of dax-tasks and dax-physics (:func:`code_digest`)."""
-        text = json.dumps(self.to_json(), sort_keys=True) + code_digest()
+        scene) and the source code of dax-tasks and dax-physics that its program can reach
+        (:func:`code_digest`: all of it but the other kinds of tasks' own files)."""
+        text = json.dumps(self.to_json(), sort_keys=True) + code_digest(scene_module(self))
         return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
@@ -235,27 +236,61 @@ def _build(cls, fields: dict):
     return cls(**{k: _tuples(v) for k, v in fields.items()})
 
 
-@functools.lru_cache(maxsize=1)
-def code_digest() -> str:
-    """SHA-256 of the programs of dax_tasks and dax_physics: each module's syntax tree
+#: Source files that only some tasks' programs reach (paths from the packages' parent
+#: directory, a directory with a trailing ``/``), each with the modules that define those
+#: tasks' scene classes. A task whose scene class is defined in one of the modules named
+#: here leaves out of its fingerprint the files named for other modules only, so an edit of
+#: the cloth solver does not stale a pour's goals, demonstrations or benchmark rows, nor an
+#: edit of the pour's bowls a rope's. Every file not named counts for every task, and a
+#: task whose scene is defined anywhere else (a user's task) counts every file. Tested: the
+#: program of each kind of task (build, reset, the step and its gradient, the expert)
+#: calls no function of a file its fingerprint leaves out.
+ONLY_FOR = {
+    "dax_physics/cloth/": ("dax_tasks.tasks._cloth",),
+    "dax_tasks/tasks/_cloth.py": ("dax_tasks.tasks._cloth",),
+    "dax_tasks/tasks/cloth.py": ("dax_tasks.tasks._cloth",),
+    "dax_physics/mpm/": ("dax_tasks.tasks.pour", "dax_tasks.tasks.push_rope",
+                         "dax_tasks.tasks.whip_rope"),
+    "dax_tasks/tasks/pour.py": ("dax_tasks.tasks.pour",),
+    "dax_tasks/tasks/_rope.py": ("dax_tasks.tasks.push_rope", "dax_tasks.tasks.whip_rope"),
+    "dax_tasks/tasks/push_rope.py": ("dax_tasks.tasks.push_rope",),
+    "dax_tasks/tasks/whip_rope.py": ("dax_tasks.tasks.whip_rope",),
+}
+
+
+def scene_module(spec) -> str | None:
+    """The module that defines the class of ``spec``'s scene (``None`` without a scene):
+    what selects the files of its fingerprint (:data:`ONLY_FOR`)."""
+    return None if spec.scene is None else type(spec.scene).__module__
+
+
+@functools.cache
+def code_digest(module: str | None = None) -> str:
+    """SHA-256 of the programs of dax_tasks and dax_physics that the tasks whose scene
+    class ``module`` defines can reach (:func:`code_files`): each module's syntax tree
     with its docstrings left out (:func:`_program_text`), so a goal, demonstration or
     benchmark row computed by one version of the code is not taken for another's (a
     changed fold or settling time changes the result without changing the spec), while an
     edit of comments, docstrings or layout changes nothing."""
     h = hashlib.sha256()
-    for package, src in code_files():
+    for package, src in code_files(module):
         h.update(src.relative_to(package.parent).as_posix().encode())
         h.update(_program_text(src.read_bytes()).encode())
     return h.hexdigest()
 
 
-def code_files() -> list:
-    """``[(package dir, source file)]``: every ``.py`` file of the dax_tasks and
-    dax_physics packages (the tasks' modules included), in a fixed order; what
-    :func:`code_digest` digests."""
+def code_files(module: str | None = None) -> list:
+    """``[(package dir, source file)]``: the ``.py`` files of the dax_tasks and dax_physics
+    packages (the tasks' modules included) in a fixed order, less those :data:`ONLY_FOR`
+    names for other modules when ``module`` (a scene class's module) is one it names;
+    what :func:`code_digest` digests. ``module=None``: every file."""
     packages = (Path(__file__).resolve().parent.parent,  # dax_tasks, not only its core
                 Path(dax_physics.__file__).resolve().parent)
-    return [(package, src) for package in packages for src in sorted(package.rglob("*.py"))]
+    known = {m for modules in ONLY_FOR.values() for m in modules}
+    left_out = (() if module not in known else
+                tuple(path for path, modules in ONLY_FOR.items() if module not in modules))
+    return [(package, src) for package in packages for src in sorted(package.rglob("*.py"))
+            if not src.relative_to(package.parent).as_posix().startswith(left_out)]
 
 
 def _program_text(source: bytes) -> str:
