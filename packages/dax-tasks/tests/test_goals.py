@@ -157,6 +157,48 @@ def test_a_tasks_program_reaches_only_the_files_its_fingerprint_reads(task):
     assert reached <= digested, sorted(reached - digested)
 
 
+def test_a_kinds_own_modules_import_nothing_its_fingerprint_leaves_out():
+    """The profile sees calls, not a constant read across kinds: so a file that only
+    some tasks reach (``ONLY_FOR``) imports, by name or as a module, nothing from a file
+    those tasks' fingerprints leave out."""
+    import ast
+    import importlib
+    import inspect
+    from pathlib import Path
+
+    from dax_tasks.core.spec import ONLY_FOR, code_files
+
+    for kind in sorted({m for modules in ONLY_FOR.values() for m in modules}):
+        files = code_files(kind)
+        digested = {src.resolve() for _, src in files}
+        roots = {package.resolve() for package, _ in files}
+        for package, src in files:
+            name = src.relative_to(package.parent).with_suffix("").as_posix()
+            if not name.startswith(tuple(p.rstrip("/").removesuffix(".py")
+                                         for p in ONLY_FOR)):
+                continue  # shared: the profile test covers it
+            here = name.replace("/", ".").removesuffix(".__init__")
+            parent = here if src.name == "__init__.py" else here.rsplit(".", 1)[0]
+            for node in ast.walk(ast.parse(src.read_bytes())):
+                if isinstance(node, ast.ImportFrom):
+                    base = importlib.util.resolve_name("." * node.level + (node.module or ""),
+                                                       parent)
+                    module = importlib.import_module(base)
+                    found = [getattr(module, a.name, None)
+                             or importlib.import_module(f"{base}.{a.name}")
+                             for a in node.names]
+                elif isinstance(node, ast.Import):
+                    found = [importlib.import_module(a.name) for a in node.names]
+                else:
+                    continue
+                for obj in found:
+                    where = (obj if inspect.ismodule(obj) else inspect.getmodule(obj)
+                             or module)
+                    path = Path(getattr(where, "__file__", None) or "").resolve()
+                    if any(path.is_relative_to(root) for root in roots):
+                        assert path in digested, f"{kind}: {name} imports {obj!r} from {path}"
+
+
 def test_the_code_digest_follows_the_program_not_its_comments_or_docstrings():
     from dax_tasks.core.spec import _program_text
 
