@@ -74,6 +74,23 @@ def steps_to_read(task: str, method: str, budget: str, steps_per_update: float,
     return round(updates * steps_per_update)
 
 
+def curve_verdict(deltas, eval_se: float) -> tuple[float, float, str]:
+    """``(Δ mean, Δ SE, verdict)`` of per-seed fifths ``deltas`` (:func:`_fifths_delta`,
+    NaN where a seed's curve is too short) against the evaluation score's SE over seeds
+    (the module docstring's rule): *too short* when no seed's curve splits."""
+    from dax_algos.bench import report
+
+    finite = [d for d in deltas if math.isfinite(d)]
+    if not finite:
+        return math.nan, math.nan, "too short"
+    d_mean, d_se = report.mean_se(finite)
+    if abs(d_mean) < eval_se:
+        return d_mean, d_se, "flat"
+    if abs(d_mean) > 2 * (0.0 if math.isnan(d_se) else d_se):
+        return d_mean, d_se, "rising" if d_mean > 0 else "falling"
+    return d_mean, d_se, "noisy"
+
+
 def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], str, str]:
     """``(rows, budget, stale note)`` (:func:`benchmarks.findings.stale_note`): one dict
     per (task, learner) with curves or learner rows in the grid at ``path``: env steps and
@@ -81,7 +98,7 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
     the evaluation score's SE, the number of seeds and the verdict (see the module
     docstring)."""
     from dax_algos import registry
-    from dax_algos.bench import learning, report
+    from dax_algos.bench import learning
     from dax_algos.method import LearnerMethod
 
     rows, budget, note = _grid_rows(path, budget, include_stale)
@@ -106,21 +123,12 @@ def curve_budgets(path, budget=None, include_stale=False) -> tuple[list[dict], s
             if not walls:
                 walls = [float(r["wall_s"]) for r in mine if r.get("wall_s")]
             _, eval_se, n = stats.get((task, method), (math.nan, math.nan, len(mine)))
-            finite = [d for d in deltas if math.isfinite(d)]
-            d_mean, d_se = report.mean_se(finite) if finite else (math.nan, math.nan)
             scored = any(math.isfinite(c["score"]) for rs in by_seed.values() for c in rs)
+            d_mean, d_se, verdict = curve_verdict(deltas, eval_se)
             if not by_seed:
                 verdict = "no curve"
             elif not scored:
                 verdict = "no episode ended"
-            elif not finite:
-                verdict = "too short"
-            elif abs(d_mean) < eval_se:
-                verdict = "flat"
-            elif abs(d_mean) > 2 * (0.0 if math.isnan(d_se) else d_se):
-                verdict = "rising" if d_mean > 0 else "falling"
-            else:
-                verdict = "noisy"
             env_steps = max(steps, default=0)
             wall = float(np.mean(walls)) if walls else math.nan
             n_updates = max(updates, default=0)
@@ -239,4 +247,55 @@ def render_throughput(grid, throughput, budget=None, include_stale=False) -> str
               "training rate over the env's rate, the part of training the env's steps "
               "would take alone; near or above 100 % the env step is the bottleneck (the "
               "two files were measured in different sittings, each on 2 shared cores)."]
+    return "\n".join(lines) + "\n"
+
+
+def render_reads(*paths) -> str:
+    """The budget reads (Markdown): per ablation file (:mod:`benchmarks.ablate`) and each
+    of its variants that changes only ``total_env_steps`` (a longer run of the budget's
+    config, e.g. ``to_read``), its curve judged by the budget table's rule
+    (:func:`curve_verdict`, against the SE of the read's own evaluation over seeds), its
+    evaluation against the budget's (the file's baseline, paired by seed) and what that
+    says of the budget: *stays* unless the longer run scores above the budget by more
+    than 2 SE of the paired difference."""
+    from benchmarks._report import read_result
+    from benchmarks.ablate import summarise
+
+    lines = ["| task | method | variant | updates: budget → read | env steps / seed | seeds "
+             "| Δ last fifth (± SE) | eval SE | verdict | score: budget → read | read − "
+             "budget (paired) | budget |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for path in paths:
+        _, records = read_result(path)
+        seeds = [r for r in records if not r.get("summary") and r["status"] == "ok"]
+        base = [r for r in seeds if r["variant"] == "baseline"]
+        summaries = {s["variant"]: s for s in summarise(seeds)}
+        for variant, s in summaries.items():
+            if variant == "baseline" or set(s["changes"]) != {"total_env_steps"}:
+                continue
+            runs = [r for r in seeds if r["variant"] == variant]
+            deltas = [_fifths_delta([math.nan if c is None else c for c in r["curve"]])
+                      for r in runs]
+            d_mean, d_se, verdict = curve_verdict(deltas, s["score_se"])
+            b = summaries["baseline"]
+            diff, dse = s["minus_baseline"], s["minus_baseline_se"]
+            better = s["better"]
+            lines.append(
+                f"| {s['task']} | {s['method']} | `{variant}` | "
+                f"{max(len(r['curve']) for r in base)} → "
+                f"{max(len(r['curve']) for r in runs)} | "
+                f"{s['changes']['total_env_steps']:,} | {len(runs)} | "
+                + ("—" if math.isnan(d_mean) else f"{d_mean:+.3f} ± {d_se:.3f}")
+                + f" | {s['score_se']:.3f} | {verdict} | {b['score_mean']:.3f} → "
+                f"{s['score_mean']:.3f} | {diff:+.3f} ± {dse:.3f} | "
+                + ("**longer is better**" if better else "stays") + " |")
+    names = ", ".join(f"`{Path(p).as_posix()}`" for p in paths)
+    lines += ["", f"From {names}. A read: the budget's config run for more env steps per "
+              "seed (the variant's), on the seeds of the budget's rows. Updates: the "
+              "curve's length. Δ: per seed, the curve's last fifth minus the fifth before, "
+              "mean ± SE over seeds; flat when |Δ| is below the SE of the read's evaluation "
+              "score, rising or falling when |Δ| is also above 2 SE of Δ, else noisy (the "
+              "budget table's rule). Scores: mean final-step r_gt of the evaluation "
+              "rollouts, mean over seeds; the difference paired by seed. The budget stays "
+              "unless the read scores above it by more than 2 SE."]
     return "\n".join(lines) + "\n"

@@ -107,6 +107,10 @@ FILE_KINDS = {
     "budgets": ("benchmarks.budgets", "render_table",
                 "each learner's budget per task and whether its learning curve has "
                 "flattened, from a grid directory's results and learning curves", 1),
+    "budget_reads": ("benchmarks.budgets", "render_reads",
+                     "each budget's curve read off a longer run of its config, and the "
+                     "longer run's score against the budget's (benchmarks.ablate JSONL "
+                     "files)", "+"),
     "training_throughput": ("benchmarks.budgets", "render_throughput",
                             "each learner's env steps per second during training beside "
                             "the env's own rate at its batch (a grid directory and a "

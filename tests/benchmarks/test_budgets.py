@@ -102,3 +102,35 @@ def test_training_throughput_sets_each_learner_against_the_env_at_its_batch(tmp_
     assert out["ppo"]["grad"] is False and out["ppo"]["env_rate"] == pytest.approx(50.0)
     table = budgets.render_throughput(grid, doc, include_stale=True)
     assert "| fold_cloth1 | apg | 4 | 6.0 | 20.0 (grad) | 30 % |" in table, table
+
+
+def test_a_budget_read_judges_the_longer_curve_and_keeps_the_budget_unless_it_is_beaten(
+        tmp_path):
+    """A read (a variant changing only ``total_env_steps``) is judged on its own curve and
+    evaluation SE; the budget stays unless the read beats it by more than 2 paired SE;
+    variants that change anything else are not reads."""
+    from benchmarks import ablate
+
+    def rec(variant, seed, score, curve, changes):
+        return {"method": "ppo", "task": "fold_cloth1", "budget": "full",
+                "variant": variant, "changes": changes, "seed": seed, "status": "ok",
+                "score": score, "untrained": 0.3, "env_steps_per_s": 5.0, "curve": curve}
+
+    flat = [None, 0.3] + [0.4] * 18            # a None update (no episode ended) skipped
+    rising = [0.3 + 0.01 * u for u in range(20)]
+    records = []
+    for seed, base in enumerate((0.40, 0.42, 0.44)):
+        records += [rec("baseline", seed, base, [0.4] * 6, {}),
+                    rec("to_read", seed, base + 0.001 * seed, flat,
+                        {"total_env_steps": 1000}),
+                    rec("steps_2000", seed, base + 0.10 + 0.001 * seed, rising,
+                        {"total_env_steps": 2000}),
+                    rec("lr_low", seed, base, rising, {"learning_rate": 1e-4})]
+    path = tmp_path / "read.jsonl"
+    ablate.write(path, records)
+    table = budgets.render_reads(path)
+    assert "| fold_cloth1 | ppo | `to_read` | 6 → 20 | 1,000 | 3 | +0.000 ± 0.000 | " \
+           "0.012 | flat | 0.420 → 0.421 | +0.001 ± 0.001 | stays |" in table, table
+    assert "| `steps_2000` | 6 → 20 | 2,000 | 3 | +0.040 ± 0.000 | 0.012 | rising | " \
+           "0.420 → 0.521 | +0.101 ± 0.001 | **longer is better** |" in table, table
+    assert "lr_low" not in table
