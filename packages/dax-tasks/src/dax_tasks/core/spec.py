@@ -238,24 +238,14 @@ def _build(cls, fields: dict):
 
 #: Source files that only some tasks' programs reach (paths from the packages' parent
 #: directory, a directory with a trailing ``/``), each with the modules that define those
-#: tasks' scene classes. A task whose scene class is defined in one of the modules named
-#: here leaves out of its fingerprint the files named for other modules only, so an edit of
-#: the cloth solver does not stale a pour's goals, demonstrations or benchmark rows, nor an
-#: edit of the pour's bowls a rope's. Every file not named counts for every task, and a
-#: task whose scene is defined anywhere else (a user's task) counts every file. Tested: the
-#: program of each kind of task (build, reset, the step and its gradient, the expert)
-#: calls no function of a file its fingerprint leaves out.
-ONLY_FOR = {
-    "dax_physics/cloth/": ("dax_tasks.tasks._cloth",),
-    "dax_tasks/tasks/_cloth.py": ("dax_tasks.tasks._cloth",),
-    "dax_tasks/tasks/cloth.py": ("dax_tasks.tasks._cloth",),
-    "dax_physics/mpm/": ("dax_tasks.tasks.pour", "dax_tasks.tasks.push_rope",
-                         "dax_tasks.tasks.whip_rope"),
-    "dax_tasks/tasks/pour.py": ("dax_tasks.tasks.pour",),
-    "dax_tasks/tasks/_rope.py": ("dax_tasks.tasks.push_rope", "dax_tasks.tasks.whip_rope"),
-    "dax_tasks/tasks/push_rope.py": ("dax_tasks.tasks.push_rope",),
-    "dax_tasks/tasks/whip_rope.py": ("dax_tasks.tasks.whip_rope",),
-}
+#: tasks' scene classes; filled by the package that defines the tasks (importing
+#: dax_tasks imports :mod:`dax_tasks.tasks`, which names the nine's files here before any
+#: fingerprint can be asked for). A task whose scene class is defined in one of the
+#: modules named here leaves out of its fingerprint the files named for other modules
+#: only, so an edit of the cloth solver does not stale a pour's goals, demonstrations or
+#: benchmark rows. Every file not named counts for every task, and a task whose scene is
+#: defined anywhere else (a user's task) counts every file.
+ONLY_FOR: dict[str, tuple] = {}
 
 
 def scene_module(spec) -> str | None:
