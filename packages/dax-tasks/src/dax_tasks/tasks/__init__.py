@@ -52,3 +52,5 @@ ONLY_FOR.update({
     "dax_tasks/tasks/push_rope.py": (f"{__name__}.push_rope",),
     "dax_tasks/tasks/whip_rope.py": (f"{__name__}.whip_rope",),
 })
+
+__all__ = ["TASKS"]
