@@ -55,7 +55,7 @@ class Finding:
 
 
 _ILD_NOISE = ("ILD's tracking-loss gradient at its budget's batch is mostly noise "
-                     "across starts (`benchmarks.gradient_noise --method ild`)")
+              "across starts (`benchmarks.gradient_noise --method ild`)")
 
 FINDINGS = (
     Finding("F1", "PPO ≥ APG and SHAC on the macro cloth tasks", CLOTH,
