@@ -88,12 +88,11 @@ RL_BUDGETS = {
             "full_heavy": _APG_FULL_HEAVY,
             # the pours: the heavy budget stops 70 steps into the first 100-step episode;
             # 5x its updates (3.5 episodes per env) measured better (benchmarks.ablate long
-            # on Pour-Water; Pour-Soup by analogy, its curve in the README)
-            "full@pour_soup": {**_APG_FULL_HEAVY, "total_env_steps": 1400},
-            # Pour-Water: that curve is too short to read; at 10 episode ends per env it
-            # is flat and scores above it by more than 2 SE (benchmarks.ablate to_read;
-            # README, the budget reads)
-            "full@pour_water": {**_APG_FULL_HEAVY, "total_env_steps": 4000},
+            # on Pour-Water), a curve too short to read; at 10 episode ends per env each
+            # pour's is flat and scores above it by more than 2 SE (benchmarks.ablate
+            # to_read; README, the budget reads)
+            **{f"full@{t}": {**_APG_FULL_HEAVY, "total_env_steps": 4000}
+               for t in ("pour_water", "pour_soup")},
             # Push-Rope: ascending the summed r_gt + aux spoils the starts the policy
             # pushes; the final step's r_gt measured better (benchmarks.ablate
             # final_reward), still under the untrained policy; a tenth of the step on it
