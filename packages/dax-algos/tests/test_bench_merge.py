@@ -125,3 +125,30 @@ def test_a_run_that_failed_in_into_is_retried_by_the_source(pieces, tmp_path):
     assert rows[1]["score"] == _by_key(b)[k]["score"]
     # the retry counts now: merging again adds nothing
     assert merge_dirs(into, [b]).added == []
+
+
+def test_a_stale_run_in_into_is_replaced_by_the_sources_fresh_one(pieces, tmp_path):
+    root, _ = pieces
+    into, b = tmp_path / "into", root / "b"
+    shutil.copytree(root / "whole", into)
+    # into's expert seed 1 was measured on other code (its fingerprint is not today's)
+    csv_path = into / "results.csv"
+    lines = csv_path.read_text().splitlines(keepends=True)
+    header = lines[0].rstrip("\n").split(",")
+    i = next(n for n, line in enumerate(lines)
+             if line.startswith(f"{TASK},expert,1,"))
+    fields = lines[i].rstrip("\n").split(",")
+    fields[header.index("task_fingerprint")] = "000000000000"
+    lines[i] = ",".join(fields) + "\n"
+    csv_path.write_text("".join(lines))
+    k = (TASK, "expert", 1, "quick")
+    done = merge_dirs(into, [b])
+    # only the stale run: the fresh rows of into stay, those of b are skipped
+    assert done.added == [k]
+    assert (TASK, "expert", 0, "quick") in done.skipped
+    rows = [r for r in read_rows(csv_path) if key(r) == k]
+    assert [r["task_fingerprint"] for r in rows][0] == "000000000000"
+    assert len(rows) == 2 and rows[1]["task_fingerprint"] == _by_key(b)[k]["task_fingerprint"]
+    assert rows[1]["score"] == _by_key(b)[k]["score"]
+    # the fresh row counts now: merging again adds nothing
+    assert merge_dirs(into, [b]).added == []

@@ -12,7 +12,11 @@ directory, :func:`merge_dirs` adds to ``into``:
   left as it is (its row counts; the source's is reported as skipped), unless ``into``'s
   row that counts failed and the source's did not: then the source's rows come as the
   retry of ``into``'s (their ``previous_errors`` begin with ``into``'s error history), as
-  if the run had been resumed there;
+  if the run had been resumed there; or unless ``into``'s row that counts is stale
+  (measured on other code, task spec or method config than today's,
+  :func:`~.provenance.stale_reason`, under ``into``'s overrides) and the source's is not
+  and did not fail: then the source's rows come after it and count, as if the run had
+  been run again there with ``--rerun-stale``;
 * for each added run, its episode files (``episodes/<task>/<method>/seed<k>*``), its
   policy (``policies/<task>/<method>/seed<k>*``) and its learning-curve rows, all written
   before its row, as the runner writes them, so an interrupted merge leaves no row without
@@ -35,7 +39,7 @@ from pathlib import Path
 
 from dax_tasks.io import atomic_write, exclusive
 
-from . import learning, rundir
+from . import learning, provenance, rundir, summary
 from .episodes import DIR as EPISODES
 from .rows import append_row, errors_of, key, latest, previous_errors, read_rows, upgrade
 
@@ -115,7 +119,8 @@ def merge_dirs(into, sources, lock_wait: float = 0.0) -> Merged:
             rows, run = _check_source(into, source, into_run, into_rows)
             upgrade(csv_path, into_rows)
             history = _retried(into_rows, rows)
-            have = {key(r) for r in into_rows} - set(history)
+            have = {key(r) for r in into_rows} - set(history) - _refreshed(
+                into_rows, rows, into_run)
             new = [r for r in rows if key(r) not in have]
             done.skipped += sorted({key(r) for r in rows if key(r) in have})
             curves = {}
@@ -150,6 +155,18 @@ def _retried(into_rows: list, rows: list) -> dict:
     theirs = {key(r): r["status"] for r in latest(rows)}
     return {key(r): errors_of(r) for r in latest(into_rows)
             if r["status"] == "failed" and theirs.get(key(r), "failed") != "failed"}
+
+
+def _refreshed(into_rows: list, rows: list, into_run: dict) -> set:
+    """The runs whose row that counts in ``into`` is stale today (under ``into``'s task
+    and method overrides) and whose row that counts in the source is not and did not fail:
+    the source's rows come after ``into``'s and count."""
+    today = summary.today_of(into_run)
+    theirs = {key(r): r for r in latest(rows)}
+    return {key(r) for r in latest(into_rows)
+            if key(r) in theirs and theirs[key(r)]["status"] != "failed"
+            and provenance.stale_reason(r, today)
+            and not provenance.stale_reason(theirs[key(r)], today)}
 
 
 def _add_invocations(into: Path, into_run: dict, run: dict) -> None:
