@@ -147,8 +147,9 @@ def test_a_stale_run_in_into_is_replaced_by_the_sources_fresh_one(pieces, tmp_pa
     assert done.added == [k]
     assert (TASK, "expert", 0, "quick") in done.skipped
     rows = [r for r in read_rows(csv_path) if key(r) == k]
-    assert [r["task_fingerprint"] for r in rows][0] == "000000000000"
-    assert len(rows) == 2 and rows[1]["task_fingerprint"] == _by_key(b)[k]["task_fingerprint"]
+    assert len(rows) == 2
+    assert rows[0]["task_fingerprint"] == "000000000000"
+    assert rows[1]["task_fingerprint"] == _by_key(b)[k]["task_fingerprint"]
     assert rows[1]["score"] == _by_key(b)[k]["score"]
     # the fresh row counts now: merging again adds nothing
     assert merge_dirs(into, [b]).added == []
