@@ -284,3 +284,16 @@ def test_to_read_is_the_run_the_named_budget_reads_took(method, task, named):
     steps = ablate.to_read_variant(method, task, "full", half)["total_env_steps"]
     assert steps * 2 == ablate.VARIANTS[method][named]["total_env_steps"]
     assert steps >= MIN_UPDATES * cfg.num_envs // 2  # at least one step per env per update
+
+
+def test_x3_triples_the_budget_steps_under_its_overrides():
+    """``x3`` is the budget's config (after ``--set``) run three times as long; a method
+    without env steps (Transporter trains on demonstrations) gets no change."""
+    from dax_algos import registry
+
+    cfg = registry.get("shac").config("full", "fold_cloth3")
+    assert ablate.x3_variant("shac", "fold_cloth3", "full", {}) == {
+        "total_env_steps": 3 * cfg.total_env_steps}
+    assert ablate.x3_variant("apg", "unfold_cloth1", "full", {"total_env_steps": 100}) == {
+        "total_env_steps": 300}
+    assert ablate.x3_variant("transporter", "fold_cloth1", "full", {}) == {}
