@@ -6,8 +6,8 @@ Each variant is the method's registry budget (``--budget``) with the variant's c
 fields changed (:data:`VARIANTS`, each named after the hypothesis it tests; ``--set``
 changes a field in every variant, the baseline included; every learner also has
 ``to_read``, the budget run until each env has ended 10 episodes, computed per task by
-:func:`to_read_variant`, and ``x3``, the budget run three times as long, to read a curve
-the budget table calls rising). Per (variant, seed) one record:
+:func:`to_read_variant`, and ``x3`` and ``half``, the budget run three times or half as
+long, to read a curve the budget table calls rising or falling). Per (variant, seed) one record:
 
 * ``score``: the trained policy's evaluation, the mean final-step r_gt of ``n_eval``
   rollouts from the runner's evaluation starts for that seed, and ``rollouts`` each one;
@@ -585,18 +585,20 @@ def to_read_variant(method: str, task: str, budget: str, sets: dict) -> dict:
     return {"total_env_steps": steps_to_read(task, method, budget, per_update, **sets)}
 
 
-#: The variant every learner has on every task: the budget's config trained for three
-#: times its env steps (:func:`x3_variant`), to read a curve the budget table calls rising
-#: (its last fifth still above the fifth before by more than 2 SE and the evaluation SE).
-X3 = "x3"
+#: The variants every learner has on every task: the budget's config trained for a multiple
+#: of its env steps (:func:`scaled_variant`): ``x3`` to read a curve the budget table calls
+#: rising (its last fifth still above the fifth before by more than 2 SE and the evaluation
+#: SE), ``half`` one it calls falling (a run that may have peaked before its budget ended).
+SCALED = {"x3": 3.0, "half": 0.5}
 
 
-def x3_variant(method: str, task: str, budget: str, sets: dict) -> dict:
-    """The config fields of :data:`X3` for ``method``'s ``budget`` config on ``task`` with
-    ``sets``: three times its ``total_env_steps``; ``{}`` for a method without env steps."""
+def scaled_variant(method: str, task: str, budget: str, sets: dict, factor: float) -> dict:
+    """The config fields of a :data:`SCALED` variant for ``method``'s ``budget`` config on
+    ``task`` with ``sets``: its ``total_env_steps`` times ``factor`` (rounded, at least 1;
+    the learner rounds it to whole updates); ``{}`` for a method without env steps."""
     steps = getattr(registry.get(method).config(budget, task, **sets), "total_env_steps",
                     None)
-    return {} if steps is None else {"total_env_steps": 3 * steps}
+    return {} if steps is None else {"total_env_steps": max(1, round(factor * steps))}
 
 
 def _seeds(text: str) -> range:
@@ -635,15 +637,15 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     sets = parse_sets(args.set)
     table = dict(VARIANTS[args.method])
-    valid = [*table, TO_READ, X3]
+    valid = [*table, TO_READ, *SCALED]
     names = [n.strip() for n in (args.variants or ",".join(valid)).split(",")]
     unknown = [n for n in names if n not in valid]
     if unknown:
         p.error(f"unknown variant(s) {unknown}; valid for {args.method}: {', '.join(valid)}")
     if TO_READ in names:  # (builds the task: seconds for a cloth task, so only when asked)
         table[TO_READ] = to_read_variant(args.method, args.task, args.budget, sets)
-    if X3 in names:
-        table[X3] = x3_variant(args.method, args.task, args.budget, sets)
+    for name in SCALED.keys() & set(names):
+        table[name] = scaled_variant(args.method, args.task, args.budget, sets, SCALED[name])
     execute.use_default_compilation_cache()
     out = Path(args.out)
     records = read_records(out)

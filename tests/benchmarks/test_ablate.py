@@ -286,14 +286,20 @@ def test_to_read_is_the_run_the_named_budget_reads_took(method, task, named):
     assert steps >= MIN_UPDATES * cfg.num_envs // 2  # at least one step per env per update
 
 
-def test_x3_triples_the_budget_steps_under_its_overrides():
-    """``x3`` is the budget's config (after ``--set``) run three times as long; a method
-    without env steps (Transporter trains on demonstrations) gets no change."""
+def test_scaled_variants_scale_the_budget_steps_under_its_overrides():
+    """``x3`` and ``half`` are the budget's config (after ``--set``) run three times or half
+    as long; a method without env steps (Transporter trains on demonstrations) gets no
+    change."""
     from dax_algos import registry
 
     cfg = registry.get("shac").config("full", "fold_cloth3")
-    assert ablate.x3_variant("shac", "fold_cloth3", "full", {}) == {
+    x3, half = ablate.SCALED["x3"], ablate.SCALED["half"]
+    assert ablate.scaled_variant("shac", "fold_cloth3", "full", {}, x3) == {
         "total_env_steps": 3 * cfg.total_env_steps}
-    assert ablate.x3_variant("apg", "unfold_cloth1", "full", {"total_env_steps": 100}) == {
-        "total_env_steps": 300}
-    assert ablate.x3_variant("transporter", "fold_cloth1", "full", {}) == {}
+    assert ablate.scaled_variant("apg", "unfold_cloth1", "full", {"total_env_steps": 100},
+                                 x3) == {"total_env_steps": 300}
+    assert ablate.scaled_variant("ild", "fold_tshirt", "full", {"total_env_steps": 480},
+                                 half) == {"total_env_steps": 240}
+    assert ablate.scaled_variant("apg", "fold_tshirt", "full", {"total_env_steps": 1},
+                                 half) == {"total_env_steps": 1}
+    assert ablate.scaled_variant("transporter", "fold_cloth1", "full", {}, x3) == {}
