@@ -1,0 +1,34 @@
+"""The self-collision benchmark's targets and table, from hand-made records (no timing)."""
+
+import json
+
+from benchmarks import cloth_self_collision as sc
+
+
+def _record(task, resolution, batch, off, lst):
+    return dict(task=task, resolution=resolution, batch=batch, step_off_s=off,
+                step_list_s=lst, ratio_list=round(lst / off, 2), ratio_all=None,
+                info={"list": {"n_vertices": 121, "substeps": 700, "pairs": 139,
+                               "builds": 85, "overflow": 0}},
+                reps=3, load_1min_before=1.0, load_1min_after=1.2)
+
+
+def test_targets_at_batch_one_carry_the_issue_names_and_limits():
+    recs = [_record("fold_cloth1", "default", 1, 0.004, 0.005),
+            _record("fold_cloth1", "reference", 1, 0.030, 0.090)]
+    t = sc.targets(recs)
+    assert t["fold_cloth1: self-collision / off"] == dict(value=1.25, limit=1.5, met=True)
+    assert t["fold_cloth1@reference: self-collision / off"]["met"] is False  # 3.0 > 2
+    assert t["fold_cloth1@reference off [s] (DaXBench / 1.5)"]["met"] is True
+
+
+def test_targets_at_another_batch_name_it_and_the_table_says_it(tmp_path):
+    recs = [_record("unfold_cloth3", "default", 16, 0.020, 0.034)]
+    t = sc.targets(recs)
+    assert list(t) == ["unfold_cloth3: self-collision / off (batch 16)"]
+    assert t["unfold_cloth3: self-collision / off (batch 16)"]["met"] is False  # 1.7 > 1.5
+    path = tmp_path / "r.jsonl"
+    path.write_text("\n".join(json.dumps(r) for r in [*recs, {"targets": t}]) + "\n")
+    table = sc.render_table(path)
+    assert "batch 16, the expert's first action" in table
+    assert "| unfold_cloth3: self-collision / off (batch 16) | 1.7 | 1.5 | no |" in table
