@@ -256,8 +256,9 @@ def render_reads(*paths) -> str:
     config, e.g. ``to_read``), its curve judged by the budget table's rule
     (:func:`curve_verdict`, against the SE of the read's own evaluation over seeds), its
     evaluation against the budget's (the file's baseline, paired by seed) and what that
-    says of the budget: *stays* unless the longer run scores above the budget by more
-    than 2 SE of the paired difference."""
+    says of the budget: *stays* unless the read (a longer run, or a shorter one such as
+    ``half``) scores above the budget by more than 2 SE of the paired difference, then
+    *longer* or *shorter is better* (by the curves' lengths)."""
     from benchmarks._report import read_result
     from benchmarks.ablate import summarise
 
@@ -279,19 +280,19 @@ def render_reads(*paths) -> str:
             d_mean, d_se, verdict = curve_verdict(deltas, s["score_se"])
             b = summaries["baseline"]
             diff, dse = s["minus_baseline"], s["minus_baseline_se"]
-            better = s["better"]
+            n_base, n_read = (max(len(r["curve"]) for r in rs) for rs in (base, runs))
+            verdict_budget = (("**shorter is better**" if n_read < n_base
+                               else "**longer is better**") if s["better"] else "stays")
             lines.append(
-                f"| {s['task']} | {s['method']} | `{variant}` | "
-                f"{max(len(r['curve']) for r in base)} → "
-                f"{max(len(r['curve']) for r in runs)} | "
+                f"| {s['task']} | {s['method']} | `{variant}` | {n_base} → {n_read} | "
                 f"{s['changes']['total_env_steps']:,} | {len(runs)} | "
                 + ("—" if math.isnan(d_mean) else f"{d_mean:+.3f} ± {d_se:.3f}")
                 + f" | {s['score_se']:.3f} | {verdict} | {b['score_mean']:.3f} → "
                 f"{s['score_mean']:.3f} | {diff:+.3f} ± {dse:.3f} | "
-                + ("**longer is better**" if better else "stays") + " |")
+                + verdict_budget + " |")
     names = ", ".join(f"`{Path(p).as_posix()}`" for p in paths)
-    lines += ["", f"From {names}. A read: the budget's config run for more env steps per "
-              "seed (the variant's), on the seeds of the budget's rows. Updates: the "
+    lines += ["", f"From {names}. A read: the budget's config run for more (or fewer) "
+              "env steps per seed (the variant's), on the seeds of the budget's rows. Updates: the "
               "curve's length. Δ: per seed, the curve's last fifth minus the fifth before, "
               "mean ± SE over seeds; flat when |Δ| is below the SE of the read's evaluation "
               "score, rising or falling when |Δ| is also above 2 SE of Δ, else noisy (the "

@@ -104,10 +104,11 @@ def test_training_throughput_sets_each_learner_against_the_env_at_its_batch(tmp_
     assert "| fold_cloth1 | apg | 4 | 6.0 | 20.0 (grad) | 30 % |" in table, table
 
 
-def test_a_budget_read_judges_the_longer_curve_and_keeps_the_budget_unless_it_is_beaten(
+def test_a_budget_read_judges_its_curve_and_keeps_the_budget_unless_it_is_beaten(
         tmp_path):
-    """A read (a variant changing only ``total_env_steps``) is judged on its own curve and
-    evaluation SE; the budget stays unless the read beats it by more than 2 paired SE;
+    """A read (a variant changing only ``total_env_steps``, longer or shorter) is judged on
+    its own curve and evaluation SE; the budget stays unless the read beats it by more than
+    2 paired SE (then longer or shorter is better);
     variants that change anything else are not reads."""
     from benchmarks import ablate
 
@@ -125,6 +126,8 @@ def test_a_budget_read_judges_the_longer_curve_and_keeps_the_budget_unless_it_is
                         {"total_env_steps": 1000}),
                     rec("steps_2000", seed, base + 0.10 + 0.001 * seed, rising,
                         {"total_env_steps": 2000}),
+                    rec("half", seed, base + 0.05 + 0.001 * seed, [0.4] * 3,
+                        {"total_env_steps": 250}),
                     rec("lr_low", seed, base, rising, {"learning_rate": 1e-4})]
     path = tmp_path / "read.jsonl"
     ablate.write(path, records)
@@ -133,4 +136,6 @@ def test_a_budget_read_judges_the_longer_curve_and_keeps_the_budget_unless_it_is
            "0.012 | flat | 0.420 → 0.421 | +0.001 ± 0.001 | stays |" in table, table
     assert "| `steps_2000` | 6 → 20 | 2,000 | 3 | +0.040 ± 0.000 | 0.012 | rising | " \
            "0.420 → 0.521 | +0.101 ± 0.001 | **longer is better** |" in table, table
+    assert "| `half` | 6 → 3 | 250 | 3 | — | 0.012 | too short | 0.420 → 0.471 | " \
+           "+0.051 ± 0.001 | **shorter is better** |" in table, table
     assert "lr_low" not in table
