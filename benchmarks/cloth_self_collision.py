@@ -19,9 +19,11 @@ and a last line with the targets and whether each is met:
 * Fold-T-shirt at the reference at least as fast as DaXBench (<= 0.664 s), with its
   self-collision (and, recorded beside it, without).
 
-The targets are the issue's at batch 1; a run at another batch names its batch in each
-target (the learners step their cloth tasks at batch 4-64, where the per-substep cost of
-a few small XLA ops is shared by the batch).
+With ``--grad`` the timed program is the step and the gradient of its summed reward with
+respect to the actions. The targets are the issue's at batch 1, forward; a run at another
+batch or with ``--grad`` says so in each target (the learners step their cloth tasks at
+batch 4-64, where the per-substep cost of a few small XLA ops is shared by the batch, and
+APG, SHAC and ILD differentiate the step).
 
     python -m benchmarks.cloth_self_collision --out benchmarks/results/DATE-cloth-targets.jsonl
     python -m benchmarks.cloth_self_collision --cases fold_cloth1,fold_tshirt --reps 9
@@ -39,6 +41,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
@@ -49,10 +52,12 @@ DEFAULT_CASES = ("fold_cloth1,fold_cloth3,fold_tshirt,unfold_cloth1,unfold_cloth
                  "fold_cloth1@reference,unfold_cloth3@reference,fold_tshirt@reference")
 
 
-def _compiled(name, resolution, batch=1, **scene):
-    """``(compiled step, its arguments, facts)`` of ``name`` at ``resolution`` with the
-    scene fields ``scene`` replaced; ``batch`` > 1: a :class:`VmapWrapper` of that many envs
-    (its facts: the largest pair count, overflow and build count of the batch)."""
+def _compiled(name, resolution, batch=1, grad=False, **scene):
+    """``(compiled program, its arguments, facts)`` of ``name`` at ``resolution`` with the
+    scene fields ``scene`` replaced: its env step, or with ``grad`` the step and the
+    gradient of its summed reward with respect to the actions (what APG, SHAC and ILD
+    differentiate); ``batch`` > 1: a :class:`VmapWrapper` of that many envs (its facts: the
+    largest pair count, overflow and build count of the batch)."""
     base = dax_tasks.get_spec(name, resolution).scene
     env = dax_tasks.make(name, cache_goal=False, resolution=resolution,
                          scene=dataclasses.replace(base, **scene))
@@ -72,26 +77,38 @@ def _compiled(name, resolution, batch=1, **scene):
         nb = physics.neighbours
         info.update(pairs=int(np.max(nb.count)), overflow=int(np.max(nb.overflow)),
                     builds=int(np.max(nb.builds)))
-    return step, (state, action, params), info
+    if not grad:
+        return step, (state, action, params), info
+
+    def total_reward(a, s, p):
+        return jnp.sum(env.step(s, a, p)[2])
+
+    t0 = time.perf_counter()
+    program = jax.jit(jax.value_and_grad(total_reward)).lower(action, state, params).compile()
+    info["compile_s"] = round(compile_s + time.perf_counter() - t0, 2)
+    jax.block_until_ready(program(action, state, params))
+    return program, (action, state, params), info
 
 
-def _variants(name, resolution, all_max, batch=1):
+def _variants(name, resolution, all_max, batch=1, grad=False):
     scene = dax_tasks.get_spec(name, resolution).scene
     if not scene.thickness > 0:
         raise ValueError(f"{name} has no self-collision to measure")
-    out = {"list": _compiled(name, resolution, batch)}
+    out = {"list": _compiled(name, resolution, batch, grad)}
     if out["list"][2]["n_vertices"] <= all_max:
-        out["all"] = _compiled(name, resolution, batch, self_search="all")
-    out["off"] = _compiled(name, resolution, batch, thickness=0.0)
+        out["all"] = _compiled(name, resolution, batch, grad, self_search="all")
+    out["off"] = _compiled(name, resolution, batch, grad, thickness=0.0)
     return out
 
 
-def measure(cases, reps: int, all_max: int = 1024, batch: int = 1) -> list[dict]:
+def measure(cases, reps: int, all_max: int = 1024, batch: int = 1,
+            grad: bool = False) -> list[dict]:
     """One record per case (``(task, resolution)`` pairs) at ``batch``, timed
-    interleaved."""
+    interleaved (``grad``: the step with the action gradient; the ``step_*_s`` fields
+    then time that program)."""
     runs = {}
     for name, res in cases:
-        for variant, run in _variants(name, res, all_max, batch).items():
+        for variant, run in _variants(name, res, all_max, batch, grad).items():
             runs[(name, res, variant)] = run
     load_before = round(os.getloadavg()[0], 2)
     times = {k: [] for k in runs}
@@ -105,7 +122,7 @@ def measure(cases, reps: int, all_max: int = 1024, batch: int = 1) -> list[dict]
     for name, res in cases:
         med = {v: float(np.median(times[(name, res, v)]))
                for (n, r, v) in runs if (n, r) == (name, res)}
-        rec = dict(task=name, resolution=res, batch=batch,
+        rec = dict(task=name, resolution=res, batch=batch, grad=grad,
                    thickness_m=dax_tasks.get_spec(name, res).scene.thickness,
                    **{f"step_{v}_s": round(t, 5) for v, t in med.items()},
                    ratio_list=round(med["list"] / med["off"], 2),
@@ -120,11 +137,14 @@ def targets(records) -> dict:
     """The issue's targets from the records (one batch size): ``{name: {value, limit,
     met}}``; at a batch other than 1 each name ends with ``(batch B)``."""
     by = {(r["task"], r["resolution"]): r for r in records}
-    batch = records[0].get("batch", 1) if records else 1
+    first = records[0] if records else {}
+    batch, grad = first.get("batch", 1), first.get("grad", False)
+    tags = ([f"batch {batch}"] if batch != 1 else []) + (["with the action gradient"]
+                                                           if grad else [])
     out = {}
 
     def add(name, value, limit):
-        name = name if batch == 1 else f"{name} (batch {batch})"
+        name = f"{name} ({', '.join(tags)})" if tags else name
         out[name] = dict(value=value, limit=limit, met=bool(value <= limit))
 
     for (task, res), r in by.items():
@@ -175,7 +195,9 @@ def render_table(path) -> str:
     out.append("")
     out.append(f"Medians of {cases[0]['reps'] if cases else '?'} interleaved rounds in one "
                f"process, batch {cases[0].get('batch', 1) if cases else '?'}, the expert's "
-               f"first action; 1-minute load "
+               f"first action"
+               f"{', the step with the action gradient' if cases and cases[0].get('grad') else ''}"
+               f"; 1-minute load "
                f"{min(loads, default=float('nan')):.1f}-{max(loads, default=float('nan')):.1f}"
                f"{'; ' + summary['date'] if summary and 'date' in summary else ''}.")
     if summary:
@@ -198,13 +220,17 @@ def main(argv=None):
     parser.add_argument("--batch", type=int, default=1,
                         help="envs stepped at once (a VmapWrapper batch; the issue's "
                              "targets are at 1)")
+    parser.add_argument("--grad", action="store_true",
+                        help="time the step with the gradient of its reward with respect "
+                             "to the actions (the program APG, SHAC and ILD run)")
     parser.add_argument("--out", default=None, help="also write the JSON lines here")
     args = parser.parse_args(argv)
     if args.batch < 1 or args.reps < 1:
         parser.error("--batch and --reps must be >= 1")
     cases = [tuple((c + "@default").split("@")[:2]) for c in args.cases.split(",")]
-    records = measure(cases, args.reps, args.all_max, args.batch)
-    summary = dict(targets=targets(records), batch=args.batch, jax=jax.__version__,
+    records = measure(cases, args.reps, args.all_max, args.batch, args.grad)
+    summary = dict(targets=targets(records), batch=args.batch, grad=args.grad,
+                   jax=jax.__version__,
                    cpus=os.cpu_count(),
                    date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
     lines = [json.dumps(r) for r in records] + [json.dumps(summary)]

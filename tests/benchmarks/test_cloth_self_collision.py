@@ -24,6 +24,9 @@ def test_targets_at_batch_one_carry_the_issue_names_and_limits():
 
 def test_targets_at_another_batch_name_it_and_the_table_says_it(tmp_path):
     recs = [_record("unfold_cloth3", "default", 16, 0.020, 0.034)]
+    grad = [{**recs[0], "grad": True}]
+    assert list(sc.targets(grad)) == [
+        "unfold_cloth3: self-collision / off (batch 16, with the action gradient)"]
     t = sc.targets(recs)
     assert list(t) == ["unfold_cloth3: self-collision / off (batch 16)"]
     assert t["unfold_cloth3: self-collision / off (batch 16)"]["met"] is False  # 1.7 > 1.5
