@@ -2,7 +2,7 @@
 issue 35 (one interleaved run, JSON).
 
 Each case is a task at a resolution (``TASK`` or ``TASK@RESOLUTION``); its env step (the
-expert's first action from ``PRNGKey(0)``; with ``--batch B``, a :class:`VmapWrapper` of B
+expert's first action from ``PRNGKey(0)``; with ``--batch B``, a ``VmapWrapper`` of B
 envs from that key's B starts, as a learner steps them) is compiled ahead of time in up to
 three variants: ``list``, the task's self-collision through its neighbour list (the
 default); ``all``, the same contact testing every vertex pair (``self_search="all"``;
@@ -41,12 +41,10 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from benchmarks.tasks import DAXBENCH
-from dax_tasks import VmapWrapper
+from benchmarks.tasks import DAXBENCH, prepare_batch
 
 DEFAULT_CASES = ("fold_cloth1,fold_cloth3,fold_tshirt,unfold_cloth1,unfold_cloth3,"
                  "fold_cloth1@reference,unfold_cloth3@reference,fold_tshirt@reference")
@@ -56,38 +54,23 @@ def _compiled(name, resolution, batch=1, grad=False, **scene):
     """``(compiled program, its arguments, facts)`` of ``name`` at ``resolution`` with the
     scene fields ``scene`` replaced: its env step, or with ``grad`` the step and the
     gradient of its summed reward with respect to the actions (what APG, SHAC and ILD
-    differentiate); ``batch`` > 1: a :class:`VmapWrapper` of that many envs (its facts: the
-    largest pair count, overflow and build count of the batch)."""
+    differentiate), both as :func:`benchmarks.tasks.prepare_batch` compiles them;
+    ``batch`` > 1: a :class:`VmapWrapper` of that many envs (its facts: the largest pair
+    count, overflow and build count of the batch)."""
     base = dax_tasks.get_spec(name, resolution).scene
     env = dax_tasks.make(name, cache_goal=False, resolution=resolution,
                          scene=dataclasses.replace(base, **scene))
-    if batch > 1:
-        env = VmapWrapper(env, batch_size=batch)
-    params = env.default_params
-    _, state = jax.jit(env.reset)(jax.random.PRNGKey(0), params)
-    action = jax.jit(env.expert_action)(state, params)
-    t0 = time.perf_counter()
-    step = jax.jit(env.step).lower(state, action, params).compile()
-    compile_s = time.perf_counter() - t0
-    out = jax.block_until_ready(step(state, action, params))
-    physics = out[1].physics
-    info = dict(compile_s=round(compile_s, 2), n_vertices=int(physics.x.shape[-2]),
-                substeps=env.spec.substeps)
+    prep = prepare_batch(env, None if batch == 1 else batch, grad)
+    step, args = prep["step"]
+    physics = step(*args)[1].physics
+    info = dict(compile_s=round(prep["compile_step_s"] + (prep["compile_grad_s"] or 0.0), 2),
+                n_vertices=int(physics.x.shape[-2]), substeps=env.spec.substeps)
     if physics.neighbours is not None:
         nb = physics.neighbours
         info.update(pairs=int(np.max(nb.count)), overflow=int(np.max(nb.overflow)),
                     builds=int(np.max(nb.builds)))
-    if not grad:
-        return step, (state, action, params), info
-
-    def total_reward(a, s, p):
-        return jnp.sum(env.step(s, a, p)[2])
-
-    t0 = time.perf_counter()
-    program = jax.jit(jax.value_and_grad(total_reward)).lower(action, state, params).compile()
-    info["compile_s"] = round(compile_s + time.perf_counter() - t0, 2)
-    jax.block_until_ready(program(action, state, params))
-    return program, (action, state, params), info
+    program, args = prep["grad"] if grad else prep["step"]
+    return program, args, info
 
 
 def _variants(name, resolution, all_max, batch=1, grad=False):
@@ -134,8 +117,9 @@ def measure(cases, reps: int, all_max: int = 1024, batch: int = 1,
 
 
 def targets(records) -> dict:
-    """The issue's targets from the records (one batch size): ``{name: {value, limit,
-    met}}``; at a batch other than 1 each name ends with ``(batch B)``."""
+    """The issue's targets from the records (one batch size and program): ``{name: {value,
+    limit, met}}``; at a batch other than 1 or with the action gradient each name ends
+    with ``(batch B, with the action gradient)`` (what applies)."""
     by = {(r["task"], r["resolution"]): r for r in records}
     first = records[0] if records else {}
     batch, grad = first.get("batch", 1), first.get("grad", False)
@@ -230,8 +214,7 @@ def main(argv=None):
     cases = [tuple((c + "@default").split("@")[:2]) for c in args.cases.split(",")]
     records = measure(cases, args.reps, args.all_max, args.batch, args.grad)
     summary = dict(targets=targets(records), batch=args.batch, grad=args.grad,
-                   jax=jax.__version__,
-                   cpus=os.cpu_count(),
+                   jax=jax.__version__, cpus=os.cpu_count(),
                    date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()))
     lines = [json.dumps(r) for r in records] + [json.dumps(summary)]
     for line in lines:
