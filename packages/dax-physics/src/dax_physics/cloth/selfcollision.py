@@ -354,11 +354,11 @@ def _pair_rows(pairs, xt, vt):
     return i, j, xv[i] - xv[j]
 
 
-def _row_forces(cfg, g, active):
-    """The pairs' forces as (n, 4) rows (x, y, z, 0) from their row differences ``g``
-    (n, 8)."""
+def _row_forces(cfg, g, i, j):
+    """The forces of the pairs ``(i, j)`` as (n, 4) rows (x, y, z, 0) from their row
+    differences ``g`` (n, 8); ``(0, 0)`` slots exert none."""
     f = _pair_force(cfg, [g[:, c] for c in range(3)], [g[:, 3 + c] for c in range(3)],
-                    active)
+                    i != j)
     return jnp.stack(f + [jnp.zeros_like(f[0])], axis=1)
 
 
@@ -368,7 +368,7 @@ def _listed_pairs_forces(cfg, pairs, xt, vt):
     ends read their position and velocity as one row of a (V, 8) array."""
     V = xt.shape[1]
     i, j, g = _pair_rows(pairs, xt, vt)
-    f = _row_forces(cfg, g, i != j)  # (n, 4)
+    f = _row_forces(cfg, g, i, j)  # (n, 4)
     out = jnp.zeros((V, 4), xt.dtype).at[jnp.concatenate([i, j])].add(
         jnp.concatenate([f, -f]))
     return out[:, :3].T
@@ -384,7 +384,7 @@ def _listed_pairs_vjp(cfg, pairs, xt, vt, ct):
     i, j, g = _pair_rows(pairs, xt, vt)
     rows = jnp.concatenate([ct, jnp.zeros_like(ct[:1])]).T  # (V, 4)
     f_bar = rows[i] - rows[j]
-    _, pull = jax.vjp(lambda g: _row_forces(cfg, g, i != j), g)
+    _, pull = jax.vjp(lambda g: _row_forces(cfg, g, i, j), g)
     g_bar = pull(f_bar)[0]  # (n, 8)
     out = jnp.zeros((V, 8), xt.dtype).at[jnp.concatenate([i, j])].add(
         jnp.concatenate([g_bar, -g_bar]))
