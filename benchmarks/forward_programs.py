@@ -1,7 +1,7 @@
 """The forward programs of the tasks, as digests, to show that a code change left them as
 they were (the evidence of a :mod:`dax_algos.bench.equivalence` ledger entry).
 
-``record``: per task, its fingerprint and spec digest and, at each ``--batches`` size (1:
+``record``: the checkout's commit and, per task, its fingerprint and spec digest and, at each ``--batches`` size (1:
 the env itself, else a :class:`dax_tasks.VmapWrapper`), SHA-256 digests of the env's
 reset, expert action and step lowered to StableHLO text without source locations
 (``Lowered.as_text(debug_info=False)``: what JAX hands XLA, for any program that embeds
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
-from dax_algos.bench.provenance import spec_digest
+from dax_algos.bench.provenance import commit, spec_digest
 from dax_tasks import TASKS, VmapWrapper
 
 
@@ -80,7 +80,8 @@ def record_task(name: str, batches, steps: int) -> dict:
 
 def record(names, batches, steps: int) -> dict:
     return {"bench": "forward_programs", "date": datetime.date.today().isoformat(),
-            "jax": jax.__version__, "steps": steps, "batches": list(batches),
+            "commit": commit(), "jax": jax.__version__, "steps": steps,
+            "batches": list(batches),
             "tasks": {n: record_task(n, batches, steps) for n in names}}
 
 

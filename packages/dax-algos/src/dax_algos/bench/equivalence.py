@@ -38,7 +38,7 @@ class Equivalence:
 
 
 #: The forward-programs files of the self-collision force's written reverse pass.
-_VJP = ("benchmarks/results/2026-12-02-forward-programs-before.json (bee55ad) and "
+_VJP = ("benchmarks/results/2026-12-02-forward-programs-before.json (f7c51af) and "
         "-after.json (b759f58): the self-collision force's reverse pass written out")
 
 #: The ledger, oldest first.
