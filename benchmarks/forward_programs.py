@@ -1,8 +1,9 @@
 """The forward programs of the tasks, as digests, to show that a code change left them as
 they were (the evidence of a :mod:`dax_algos.bench.equivalence` ledger entry).
 
-``record``: the checkout's commit and, per task, its fingerprint and spec digest and, at each ``--batches`` size (1:
-the env itself, else a :class:`dax_tasks.VmapWrapper`), SHA-256 digests of the env's
+``record``: the checkout's commit and, per task, its fingerprint and spec digest and, at
+each ``--batches`` size (1: the env itself, else a :class:`dax_tasks.VmapWrapper`),
+SHA-256 digests of the env's
 reset, expert action and step lowered to StableHLO text without source locations
 (``Lowered.as_text(debug_info=False)``: what JAX hands XLA, for any program that embeds
 them), and of the bytes of ``--steps`` expert steps from ``PRNGKey(0)`` (states,
