@@ -117,6 +117,31 @@ def test_stale_reason_tells_a_changed_spec_from_changed_code(grid, monkeypatch):
     assert "spec changed" in provenance.stale_reason(other_spec, today)
 
 
+def test_a_forward_equivalence_keeps_only_the_rows_of_methods_without_env_gradients(grid):
+    """A ledger entry from a row's fingerprint to today's keeps a random or PPO row current
+    (neither differentiates the env), not an APG row of the same task; an entry for
+    another fingerprint, or a row whose spec changed, keeps nothing; entries chain."""
+    from dax_algos.bench.equivalence import Equivalence, forward_equivalent
+
+    _, rows = grid
+    today = provenance.Today(OVERRIDES, {"ppo": PPO})
+    now = today.fingerprint(TASK)[0][0]
+    old = "0123456789ab"
+    ledger = (Equivalence(TASK, old, "feedfacecafe", "test"),
+              Equivalence(TASK, "feedfacecafe", now, "test"))
+    assert forward_equivalent(old, now, ledger) and not forward_equivalent(now, old, ledger)
+    by_method = {r["method"]: r for r in rows}
+    for method in ("random", "ppo"):
+        row = dict(by_method[method], task_fingerprint=old)
+        assert "code changed" in provenance.stale_reason(row, today)  # the real ledger
+        assert provenance.stale_reason(row, today, ledger) == ""
+        assert "code changed" in provenance.stale_reason(row, today, ledger[:1])
+        other_spec = dict(row, spec_digest="ba9876543210")
+        assert "spec changed" in provenance.stale_reason(other_spec, today, ledger)
+    apg = dict(by_method["ppo"], method="apg", task_fingerprint=old)
+    assert "code changed" in provenance.stale_reason(apg, today, ledger)
+
+
 def test_rerun_stale_runs_again_only_the_runs_whose_rows_are_stale(grid, monkeypatch,
                                                                    tmp_path):
     """After PPO's config changes, a resumed grid leaves the stale PPO rows as they are;

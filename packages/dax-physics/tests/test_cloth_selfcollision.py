@@ -249,6 +249,52 @@ def test_force_gradient_with_the_list_held_matches_finite_differences():
                     f"d/d{'xv'[arg]}[{i},{k}]: FD {fd}, autodiff {float(g[i, k])}")
 
 
+def test_written_reverse_pass_equals_autodiff_of_the_listed_pairs():
+    """float64: the listed pairs' written-out VJP (in the stored pairs' slot tier) equals
+    the autodiff of the plain pair sum, alone and under vmap over two lists of different
+    tiers (the batch's largest tier, its unused slots inert)."""
+    with jax.enable_x64(True):
+        cl, x, h = _folded()
+        cfg = c.ClothConfig(thickness=h, self_stiffness=5.0, self_damping=1e-3,
+                            self_friction=2e-3)
+        keys = jax.random.split(jax.random.PRNGKey(3), 4)
+        xs = jnp.stack([x.astype(jnp.float64) + 0.2 * h * jax.random.normal(k, x.shape)
+                        for k in keys[:2]])
+        vs = 0.1 * jax.random.normal(keys[2], xs.shape, jnp.float64)
+        ct = jax.random.normal(keys[3], (2, 3, x.shape[0]), jnp.float64)
+        lists = [sc.neighbour_list(cfg, cl, xb) for xb in xs]
+        # the second list: 8 of its touching pairs only, in a smaller slot tier
+        touching = sorted(_close(lists[1], xs[1], h))[:8]
+        pairs = np.zeros(lists[1].pairs.shape, np.int32)
+        pairs[:, :len(touching)] = np.array(touching).T
+        lists[1] = lists[1].replace(pairs=jnp.asarray(pairs),
+                                    count=jnp.asarray(len(touching), jnp.int32))
+        sizes = sc._tier_sizes(lists[0].pairs.shape[1])
+        tiers = [int(np.searchsorted(sizes, int(n.count))) for n in lists]
+        assert tiers[0] > tiers[1], (tiers, int(lists[0].count))
+
+        def written(nbrs, xt, vt, ct):
+            return jax.vjp(lambda a, b: sc._list_forces(cfg, nbrs, a, b), xt, vt)[1](ct)
+
+        def autodiff(nbrs, xt, vt, ct):
+            return jax.vjp(lambda a, b: sc._listed_pairs_forces(cfg, nbrs.pairs, a, b),
+                           xt, vt)[1](ct)
+
+        xt, vt = jnp.swapaxes(xs, 1, 2), jnp.swapaxes(vs, 1, 2)
+        for b in range(2):
+            got = written(lists[b], xt[b], vt[b], ct[b])
+            want = autodiff(lists[b], xt[b], vt[b], ct[b])
+            assert float(jnp.abs(want[0]).max()) > 0
+            for g, w in zip(got, want, strict=True):
+                np.testing.assert_allclose(g, w, rtol=1e-12, atol=1e-12)
+        both = jax.tree.map(lambda a, b: jnp.stack([a, b]), *lists)
+        got = jax.vmap(written)(both, xt, vt, ct)
+        for b in range(2):
+            want = autodiff(lists[b], xt[b], vt[b], ct[b])
+            for g, w in zip(got, want, strict=True):
+                np.testing.assert_allclose(g[b], w, rtol=1e-12, atol=1e-12)
+
+
 def test_rollout_gradient_with_the_list_equals_all_pairs():
     """The gradient of a falling folded cloth's final heights is the same with the list
     (rebuilt along the way) as with all pairs: a rebuild changes which pairs are looked

@@ -24,7 +24,9 @@ training, a chaotic computation, repeats to the bit only within one class, so a 
 stands in for a seed trained again only on a machine of its class.
 
 A row is **stale** when what it was measured on is no longer what the code builds: its
-fingerprint differs from the task's today (built with the run's task overrides), or its
+fingerprint differs from the task's today (built with the run's task overrides; unless
+the row's method never differentiates through the env and the ledger of
+:mod:`dax_algos.bench.equivalence` says today's code gives the row's forward programs), or its
 config digest differs from the config the same method name gives today (budget, task and
 method overrides as the run had them), or it has no provenance at all (a file written
 before rows carried it: "provenance unknown"). Stale rows stay in ``results.csv``; the
@@ -50,6 +52,7 @@ from dax_tasks.core.registry import PARAM_OVERRIDES, check_overrides
 
 from .. import registry
 from . import rundir
+from .equivalence import LEDGER, forward_equivalent
 
 #: the provenance columns of results.csv, in order
 COLUMNS = ("task_fingerprint", "spec_digest", "params_digest", "config_digest", "versions",
@@ -208,9 +211,17 @@ def _attempt(fn) -> tuple:
         return None, " ".join(f"{type(err).__name__}: {err}".split())[:120]
 
 
-def stale_reason(row: Mapping, today: Today) -> str:
+def _forward_only(method: str) -> bool:
+    """Whether ``method`` never differentiates through the env (an unknown method: no)."""
+    try:
+        return not registry.get(method).uses_gradients
+    except ValueError:
+        return False
+
+
+def stale_reason(row: Mapping, today: Today, ledger: tuple = LEDGER) -> str:
     """Why ``row`` no longer describes today's code (``""``: it does). See the module
-    docstring."""
+    docstring; ``ledger``: the forward equivalences honoured (:mod:`.equivalence`)."""
     if not has_provenance(row):
         return UNKNOWN
     reasons = []
@@ -219,7 +230,9 @@ def stale_reason(row: Mapping, today: Today) -> str:
         now, error = today.fingerprint(row["task"])
         if now is None:
             reasons.append(f"the task cannot be built today ({error})")
-        elif now[0] != fp:
+        elif now[0] != fp and not (
+                row.get("spec_digest") == now[1] and _forward_only(row.get("method", ""))
+                and forward_equivalent(fp, now[0], ledger)):
             what = ("the task's spec changed" if row.get("spec_digest") != now[1] else
                     "the dax-tasks or dax-physics code changed")
             reasons.append(f"{what} (fingerprint {fp}, today {now[0]})")

@@ -23,7 +23,8 @@ The force of a pair (:func:`_pair_force`) is the same whichever way the pairs ar
 
 Forces are differentiable in the positions and velocities with the list held constant:
 no gradient flows through a build (it only selects pairs, and a pair beyond h exerts no
-force). Under ``jax.vmap`` a batch rebuilds when any of its members must (each member
+force), and the listed pairs' reverse pass is written out, a gather and a scatter that
+mirror the forward's. Under ``jax.vmap`` a batch rebuilds when any of its members must (each member
 takes the new list only where it needed one, so batched and single runs hold the same
 lists), and the force's slot tier is the batch's largest: ``lax.cond`` and
 ``lax.switch`` then stay branches instead of becoming selects that run every branch.
@@ -31,6 +32,7 @@ lists), and the force's slot tier is the batch's largest: ``lax.cond`` and
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -344,32 +346,98 @@ def _all_pairs_forces(cfg, cloth, xt, vt):
     return jnp.stack([jnp.sum(f, axis=1) for f in _pair_force(cfg, d, dv, active)])
 
 
+def _pair_rows(pairs, xt, vt):
+    """``(i, j, g)``: the pairs' ends (n,) and ``g`` (n, 8), end i's position and velocity
+    less end j's, read as one row of a (V, 8) array per end (x, v, padding)."""
+    i, j = pairs[0], pairs[1]
+    xv = jnp.concatenate([xt, vt, jnp.zeros_like(xt[:2])]).T  # (V, 8): x, v, padding
+    return i, j, xv[i] - xv[j]
+
+
+def _row_forces(cfg, g, i, j):
+    """The forces of the pairs ``(i, j)`` as (n, 4) rows (x, y, z, 0) from their row
+    differences ``g`` (n, 8); ``(0, 0)`` slots exert none."""
+    f = _pair_force(cfg, [g[:, c] for c in range(3)], [g[:, 3 + c] for c in range(3)],
+                    i != j)
+    return jnp.stack(f + [jnp.zeros_like(f[0])], axis=1)
+
+
 def _listed_pairs_forces(cfg, pairs, xt, vt):
     """Forces (3, V) of the pairs ``(2, n)``: each pair's force is computed once and added
     to i and subtracted from j (one scatter of rows); ``(0, 0)`` slots exert none. Both
     ends read their position and velocity as one row of a (V, 8) array."""
     V = xt.shape[1]
-    i, j = pairs[0], pairs[1]
-    xv = jnp.concatenate([xt, vt, jnp.zeros_like(xt[:2])]).T  # (V, 8): x, v, padding
-    g = xv[i] - xv[j]  # (n, 8)
-    f = _pair_force(cfg, [g[:, c] for c in range(3)], [g[:, 3 + c] for c in range(3)],
-                    i != j)
-    f = jnp.stack(f + [jnp.zeros_like(f[0])], axis=1)  # (n, 4)
+    i, j, g = _pair_rows(pairs, xt, vt)
+    f = _row_forces(cfg, g, i, j)  # (n, 4)
     out = jnp.zeros((V, 4), xt.dtype).at[jnp.concatenate([i, j])].add(
         jnp.concatenate([f, -f]))
     return out[:, :3].T
 
 
-def _list_forces(cfg, nbrs: NeighbourList, xt, vt):
-    """Forces (3, V) of the pairs of ``nbrs``, over the smallest slot tier that holds them
-    (none when the list is empty)."""
-    sizes = _tier_sizes(nbrs.pairs.shape[1])
+def _listed_pairs_vjp(cfg, pairs, xt, vt, ct):
+    """The cotangents ``(x̄, v̄)`` (3, V) of :func:`_listed_pairs_forces` for the forces'
+    cotangent ``ct`` (3, V): a pair's force cotangent is ``ct_i - ct_j`` (one gather of
+    (V, 4) rows), pulled back through the pair's contact law (elementwise), and its row
+    cotangent is added to i and subtracted from j (one scatter of (V, 8) rows), the mirror
+    of the forward pass."""
+    V = xt.shape[1]
+    i, j, g = _pair_rows(pairs, xt, vt)
+    rows = jnp.concatenate([ct, jnp.zeros_like(ct[:1])]).T  # (V, 4)
+    f_bar = rows[i] - rows[j]
+    _, pull = jax.vjp(lambda g: _row_forces(cfg, g, i, j), g)
+    g_bar = pull(f_bar)[0]  # (n, 8)
+    out = jnp.zeros((V, 8), xt.dtype).at[jnp.concatenate([i, j])].add(
+        jnp.concatenate([g_bar, -g_bar]))
+    return out[:, :3].T, out[:, 3:6].T
+
+
+def _tier(nbrs_count, sizes):
+    """Index into ``[none] + sizes`` of the smallest slot tier holding ``nbrs_count``
+    pairs (0: none stored), the batch's largest under ``vmap``."""
     # one comparison against a constant array: a stack of scalar comparisons is a loop
     # per tier on XLA:CPU, run every substep
-    tier = jnp.sum(nbrs.count > jnp.asarray(sizes[:-1] + (0,), jnp.int32), dtype=jnp.int32)
+    tier = jnp.sum(nbrs_count > jnp.asarray(sizes[:-1] + (0,), jnp.int32), dtype=jnp.int32)
+    return _batch_max(tier)
+
+
+def _list_forces(cfg, nbrs: NeighbourList, xt, vt):
+    """Forces (3, V) of the pairs of ``nbrs``, over the smallest slot tier that holds them
+    (none when the list is empty); differentiable in ``xt`` and ``vt`` with the list held
+    (:func:`_tiered_forces`)."""
+    return _tiered_forces(cfg, nbrs.pairs, nbrs.count, xt, vt)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _tiered_forces(cfg, pairs, count, xt, vt):
+    """:func:`_listed_pairs_forces` over the first slots of ``pairs`` (2, P) in the
+    smallest tier holding ``count`` pairs (a ``lax.switch``).
+
+    Its reverse pass is written out (:func:`_listed_pairs_vjp`, in the same tier): the
+    autodiff of the switch keeps every tier's residuals and runs a linearised copy of the
+    forward branch, which made the force's reverse pass the larger part of what
+    self-collision adds to a cloth step's action gradient. Forward values are those of
+    the plain switch."""
+    sizes = _tier_sizes(pairs.shape[1])
     branches = [lambda p, xt, vt: jnp.zeros_like(xt)] + [
         lambda p, xt, vt, n=n: _listed_pairs_forces(cfg, p[:, :n], xt, vt) for n in sizes]
-    return jax.lax.switch(_batch_max(tier), branches, nbrs.pairs, xt, vt)
+    return jax.lax.switch(_tier(count, sizes), branches, pairs, xt, vt)
+
+
+def _tiered_forces_fwd(cfg, pairs, count, xt, vt):
+    return _tiered_forces(cfg, pairs, count, xt, vt), (pairs, count, xt, vt)
+
+
+def _tiered_forces_bwd(cfg, res, ct):
+    pairs, count, xt, vt = res
+    sizes = _tier_sizes(pairs.shape[1])
+    branches = [lambda p, xt, vt, ct: (jnp.zeros_like(xt), jnp.zeros_like(vt))] + [
+        lambda p, xt, vt, ct, n=n: _listed_pairs_vjp(cfg, p[:, :n], xt, vt, ct)
+        for n in sizes]
+    x_bar, v_bar = jax.lax.switch(_tier(count, sizes), branches, pairs, xt, vt, ct)
+    return None, None, x_bar, v_bar
+
+
+_tiered_forces.defvjp(_tiered_forces_fwd, _tiered_forces_bwd)
 
 
 def forces_cm(cfg, cloth, xt, vt, nbrs: NeighbourList | None):
