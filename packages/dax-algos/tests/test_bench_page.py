@@ -4,6 +4,7 @@ reproduce the recorded scores, a byte-identical page when nothing changed (nothi
 again), resuming and extending, bad input, and the page in a headless browser where one is
 installed."""
 
+import csv
 import html.parser
 import json
 import re
@@ -17,6 +18,7 @@ from PIL import Image
 
 from dax_algos import registry
 from dax_algos.bench import episodes, page, rundir, runner, summary
+from dax_algos.bench.equivalence import Equivalence, forward_equivalent
 from dax_algos.bench.grid import run_grid
 
 TASK = "fold_cloth1"
@@ -201,6 +203,41 @@ def test_rows_without_a_recording_still_report(grid, tmp_path):
     text = (old / page.PAGE).read_text()
     assert "was not recorded" in text and "<img src=\"episodes/" not in text
     assert _parse(old / page.PAGE).tables["scores"][1][0][1] == TASK
+
+
+def test_recordings_on_a_forward_equivalent_fingerprint_count_as_today_s(grid, tmp_path,
+                                                                        monkeypatch):
+    """A recording made before a code change that the equivalence ledger says left the
+    task's forward programs as they were is drawn without the "task changed" warning and
+    under its own fingerprint's name; without the ledger entry it is flagged."""
+    out, _ = grid
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    before = "feedfacecafe"
+    recordings = sorted((old / episodes.DIR).rglob("seed*.npz"))
+    assert recordings
+    for path in recordings:  # as if recorded on the code before the change
+        ep = episodes.load_episode(path)
+        episodes.save_episode(path, ep.reset_key, ep.actions, ep.score, before, ep.rollout,
+                              ep.n_rollouts, ep.budget)
+    warning = "the task's code or spec changed since the run"
+    summary.report_dir(old)
+    assert warning in (old / page.PAGE).read_text()
+    with open(old / "results.csv", newline="") as f:  # the rows were made on today's code
+        (today,) = {r["task_fingerprint"] for r in csv.DictReader(f)}
+    ledger = (Equivalence(TASK, before, today, "test"),)
+    monkeypatch.setattr(episodes, "forward_equivalent",
+                        lambda b, a: forward_equivalent(b, a, ledger))
+    summary.report_dir(old)
+    text = (old / page.PAGE).read_text()
+    assert warning not in text
+    shown = re.findall(r'src="(episodes/[^"]+\.png)"', text)
+    assert shown
+    for rel in shown:
+        _, task, method, name = rel.split("/")
+        seed = int(name[4:].split("-")[0])
+        ep = episodes.load_episode(episodes.episode_path(old, task, method, seed))
+        assert name == f"seed{seed}-{episodes.picture_key(before, ep)}.png", rel
 
 
 def test_report_of_a_directory_without_results_is_a_one_line_error(tmp_path, capsys):
