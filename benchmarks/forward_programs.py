@@ -28,10 +28,10 @@ import sys
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import dax_tasks
+from benchmarks.tasks import probe_act
 from dax_algos.bench.provenance import commit, spec_digest
 from dax_tasks import TASKS, VmapWrapper
 
@@ -54,15 +54,7 @@ def record_task(name: str, batches, steps: int) -> dict:
             env = VmapWrapper(env, batch_size=b)
         params, key = env.default_params, jax.random.PRNGKey(0)
         _, state = jax.jit(env.reset)(key, params)
-        if env.has_expert:
-            act = jax.jit(env.expert_action)
-        else:
-            mid = jnp.asarray(0.5 * (np.asarray(env.spec.action_low)
-                                     + np.asarray(env.spec.action_high)), jnp.float32)
-            shape = (env.spec.action_dim,) if b == 1 else (b, env.spec.action_dim)
-
-            def act(state, params, mid=mid, shape=shape):
-                return jnp.broadcast_to(mid, shape)
+        act = jax.jit(probe_act(env, b if b > 1 else None))
         action = act(state, params)
         digests = {"reset": _lowered(env.reset, key, params),
                    "step": _lowered(env.step, state, action, params)}

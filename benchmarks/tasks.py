@@ -98,6 +98,21 @@ def resolution(env) -> dict:
     return out
 
 
+def probe_act(env, batch: int | None):
+    """``act(state, params) -> action``: the action a benchmark steps ``env`` with (already
+    wrapped to ``batch`` members, ``None``: unbatched): the task's scripted expert's, else
+    the middle of the action box, float32, ``(action_dim,)`` or ``(batch, action_dim)``."""
+    if env.has_expert:
+        return env.expert_action
+    mid = jnp.asarray(0.5 * (np.asarray(env.spec.action_low)
+                             + np.asarray(env.spec.action_high)), jnp.float32)
+    shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
+
+    def act(state, params):
+        return jnp.broadcast_to(mid, shape)
+    return act
+
+
 def prepare_batch(env, batch: int | None, grad: bool = True) -> dict:
     """The compiled programs of one env (``batch=None``) or a :class:`VmapWrapper` batch,
     ready to time (:func:`time_batch`): its reset, its step and (``grad``) the step plus
@@ -113,12 +128,7 @@ def prepare_batch(env, batch: int | None, grad: bool = True) -> dict:
     key = jax.random.PRNGKey(0)
     reset, c_reset = timed_compile(jax.jit(env.reset), key, params)
     _, state = reset(key, params)
-    if env.has_expert:
-        action = jax.jit(env.expert_action)(state, params)
-    else:
-        mid = 0.5 * (np.asarray(env.spec.action_low) + np.asarray(env.spec.action_high))
-        shape = (env.spec.action_dim,) if batch is None else (batch, env.spec.action_dim)
-        action = jnp.broadcast_to(jnp.asarray(mid, jnp.float32), shape)
+    action = jax.jit(probe_act(env, batch))(state, params)
     step, c_step = timed_compile(jax.jit(env.step), state, action, params)
     jax.block_until_ready(step(state, action, params))
     prep = {"batch": 1 if batch is None else batch, "reset": (reset, (key, params)),
