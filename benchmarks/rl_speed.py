@@ -26,6 +26,10 @@ import dax_tasks
 from benchmarks._timing import emit, median_time, peak_rss_mb, timed_compile
 from dax_algos import registry
 
+#: the methods this command measures (:mod:`benchmarks.il_speed` measures ILD's updates
+#: with its demonstrations, through :func:`measure`)
+RL_METHODS = ("ppo", "apg", "shac")
+
 
 def _steps_per_update(method: str, config, env) -> int:
     if method == "ppo":
@@ -130,9 +134,15 @@ def main(argv=None) -> int:
                    help="config override (Python literal), e.g. --set num_envs=64")
     p.add_argument("--json", action="store_true", help="one JSON line per measurement")
     args = p.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    other = [m for m in methods if m not in RL_METHODS]
+    if other:
+        p.error(f"--methods {','.join(other)}: not a reinforcement-learning method (valid: "
+                f"{', '.join(RL_METHODS)}); ILD and Transporter train on demonstrations, "
+                f"measured by python -m benchmarks.il_speed")
     overrides = parse_sets(args.set)
     for task in args.tasks.split(","):
-        for method in args.methods.split(","):
+        for method in methods:
             print(f"{task} / {method} ...", file=sys.stderr)
             emit(measure(task, method, args.reps, overrides), args.json)
     return 0
