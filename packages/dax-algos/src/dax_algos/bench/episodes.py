@@ -41,6 +41,7 @@ import numpy as np
 
 from dax_tasks.io import atomic_write
 
+from .equivalence import forward_equivalent
 from .rows import check_name
 
 DIR = "episodes"
@@ -248,16 +249,18 @@ def draw(env, states, view=None):
 
 
 def render_picture(out: Path, env, episode: Episode, task: str, method: str, seed: int,
-                   replays: dict, params=None) -> dict:
+                   replays: dict, params=None, fingerprint: str | None = None) -> dict:
     """Replay ``episode`` on ``env``, draw it and write its pictures under ``out`` (the
     GIF, the filmstrip PNG, then the sidecar JSON, each atomically); returns the sidecar's
     contents. ``replays`` caches the jitted replays per (task, batched) and the view per
-    (task, "view")."""
+    (task, "view"). ``fingerprint``: the one the pictures are named by (default the env's;
+    the recording's where the two are forward-equivalent, so the names stay)."""
     from dax_tasks import viz
 
     params = env.default_params if params is None else params
     t0 = time.perf_counter()
-    key = picture_key(env.spec.fingerprint(), episode)
+    key = picture_key(env.spec.fingerprint() if fingerprint is None else fingerprint,
+                      episode)
     base = Path(out) / DIR / task / method / f"seed{seed}-{key}"
     mode = "unbatched"
     for batched in (False, True):
@@ -347,11 +350,16 @@ def _picture(out, t, m, rows, make_env, envs, replays) -> Picture:
         if t not in envs:
             envs[t] = make_env(t)
         env = envs[t]
-        pic.same_task = env.spec.fingerprint() == episode.fingerprint
-        base = out / DIR / t / m / f"seed{seed}-{picture_key(env.spec.fingerprint(), episode)}"
+        today = env.spec.fingerprint()
+        # a recording on code whose forward programs are today's replays as it ran: it
+        # counts as today's task and keeps the name it was drawn under
+        pic.same_task = forward_equivalent(episode.fingerprint, today)
+        fingerprint = episode.fingerprint if pic.same_task else today
+        base = out / DIR / t / m / f"seed{seed}-{picture_key(fingerprint, episode)}"
         meta = _cached(base)
         if meta is None:
-            meta = render_picture(out, env, episode, t, m, seed, replays)
+            meta = render_picture(out, env, episode, t, m, seed, replays,
+                                  fingerprint=fingerprint)
     except Exception as err:  # noqa: BLE001 - the page says why, the report goes on
         pic.note = "not drawn: " + " ".join(f"{type(err).__name__}: {err}".split())[:300]
         return pic
