@@ -124,6 +124,47 @@ def render_table(path) -> str:
     return "\n".join(out) + "\n"
 
 
+def render_before_after(path) -> str:
+    """The Markdown table of a before/after comparison: JSON lines of :func:`measure`
+    records (RL and ILD alike) each tagged with ``code`` ("before" or "after"), its
+    ``commit``, the ``arm`` it ran in (arms interleaved, e.g. before, after, after, before,
+    so that a drift in the machine's speed falls on both) and the 1-minute load when the
+    arm started. Per task and method: the mean time per update of each code over its arms
+    with the range, the factor before ÷ after, and XLA's scratch memory of the one-update
+    program before → after."""
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    pairs: dict = {}
+    for r in recs:
+        pairs.setdefault((r["task"], r["method"]), {}).setdefault(r["code"], []).append(r)
+    out = ["| task | method (one update) | before: time per update [s] | after [s] | "
+           "before ÷ after | XLA scratch before → after [MiB] |",
+           "|---|---|---|---|---|---|"]
+    for (task, method), by in pairs.items():
+        if set(by) != {"before", "after"}:
+            continue
+        t = {c: [r["update_s"] for r in by[c]] for c in by}
+        mean = {c: sum(v) / len(v) for c, v in t.items()}
+
+        def cell(c):
+            lo, hi = min(t[c]), max(t[c])
+            return f"{_s(mean[c])} ({_s(lo)}–{_s(hi)})" if len(t[c]) > 1 else _s(mean[c])
+
+        mem = " → ".join(str(by[c][0].get("xla_temp_mb", "-")) for c in ("before", "after"))
+        out.append(f"| {task} | {method} ({update_label(by['after'][0])}) | "
+                   f"{cell('before')} | {cell('after')} | "
+                   f"{mean['before'] / mean['after']:.2f} | {mem} |")
+    arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
+                   for r in recs})
+    order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
+    devices = sorted({r.get("device", "?") for r in recs})
+    out += ["", "Time per update as in the table above, the mean over each code's arms "
+            f"(range in brackets); arms in the order run: {order}. {', '.join(devices)}. "
+            f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.rl_speed",
                                 description=__doc__.split("\n\n")[0])

@@ -95,6 +95,10 @@ FILE_KINDS = {
                     "(benchmarks.horizon_sweep JSONL files)", "+"),
     "rl_speed": ("benchmarks.rl_speed", "render_table",
                  "time per RL training update (a benchmarks.rl_speed JSONL file)", 1),
+    "rl_speed_before_after": ("benchmarks.rl_speed", "render_before_after",
+                              "time per training update before and after a code change, "
+                              "arms interleaved (a JSONL file of benchmarks.rl_speed and "
+                              "benchmarks.il_speed records tagged code, commit, arm)", 1),
     "il_speed": ("benchmarks.il_speed", "render_table",
                  "Transporter's and ILD's training and inference cost (a "
                  "benchmarks.il_speed JSONL file)", 1),
