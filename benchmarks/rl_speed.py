@@ -124,6 +124,12 @@ def render_table(path) -> str:
     return "\n".join(out) + "\n"
 
 
+def _mean_range(times) -> str:
+    """``"mean (min–max)"`` of ``times`` [s], or the one time."""
+    mean = sum(times) / len(times)
+    return f"{_s(mean)} ({_s(min(times))}–{_s(max(times))})" if len(times) > 1 else _s(mean)
+
+
 def render_before_after(path) -> str:
     """The Markdown table of a before/after comparison: JSON lines of :func:`measure`
     records (RL and ILD alike) each tagged with ``code`` ("before" or "after"), its
@@ -146,14 +152,9 @@ def render_before_after(path) -> str:
             continue
         t = {c: [r["update_s"] for r in by[c]] for c in by}
         mean = {c: sum(v) / len(v) for c, v in t.items()}
-
-        def cell(c):
-            lo, hi = min(t[c]), max(t[c])
-            return f"{_s(mean[c])} ({_s(lo)}–{_s(hi)})" if len(t[c]) > 1 else _s(mean[c])
-
         mem = " → ".join(str(by[c][0].get("xla_temp_mb", "-")) for c in ("before", "after"))
         out.append(f"| {task} | {method} ({update_label(by['after'][0])}) | "
-                   f"{cell('before')} | {cell('after')} | "
+                   f"{_mean_range(t['before'])} | {_mean_range(t['after'])} | "
                    f"{mean['before'] / mean['after']:.2f} | {mem} |")
     arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
                    for r in recs})
