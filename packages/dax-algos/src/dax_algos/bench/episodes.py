@@ -21,7 +21,9 @@ shape can round differently; a mismatching replay is tried once more under ``vma
 a batch of one, which the page then names.) Pictures are named by the seed and a
 hash of everything they depend on (the task's fingerprint, the start key, the actions,
 the drawing settings), so drawing them again is skipped: a sidecar JSON file records what
-the replay gave and how long it took.
+the replay gave and how long it took. A recording made on code whose forward programs the
+equivalence ledger (:mod:`dax_algos.bench.equivalence`) makes today's counts as today's
+task and keeps the name from its own fingerprint.
 """
 
 from __future__ import annotations
