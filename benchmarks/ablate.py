@@ -103,7 +103,11 @@ VARIANTS = {
             # Unfold-Cloth-3: the object frame at the budget splits the seeds (three well
             # above their untrained policy, two below); 4x its updates, as PPO's budget
             # there took
-            "object_frame_long": {"frame": "object", "total_env_steps": 1920}},
+            "object_frame_long": {"frame": "object", "total_env_steps": 1920},
+            # the raw cloth gradient norms span orders of magnitude between updates: a
+            # batch gradient led by one env's step through contact; each env's action
+            # gradient clipped to the batch's median norm at every step
+            "median_clip": {"action_grad": "median_clip"}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
              "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},

@@ -208,3 +208,19 @@ def test_cpu_info_reads_the_first_processors_isa_features_and_the_xla_cap(tmp_pa
     assert rundir.machine_class({"cpu_features": [], "xla_max_isa": None}) == "none"
     assert rundir.machine_class(rundir.cpu_info(tmp_path / "missing")) == "unknown"
     assert rundir.machine_class({}) == "unknown"
+
+
+def test_a_field_marked_omit_default_stales_nothing_at_its_default_only_off_it():
+    import dataclasses
+
+    from dax_algos.checks import OMIT_DEFAULT
+
+    def config(*added):  # one config class, before and after fields were added to it
+        return dataclasses.make_dataclass("Config", [("lr", float, 1e-3), *added],
+                                          frozen=True)
+
+    before = provenance.config_digest(config()())
+    marked = config(("clip", str, dataclasses.field(default="raw", metadata=OMIT_DEFAULT)))
+    assert provenance.config_digest(marked()) == before
+    assert provenance.config_digest(marked(clip="median")) != before
+    assert provenance.config_digest(config(("clip", str, "raw"))()) != before

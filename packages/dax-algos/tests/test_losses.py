@@ -99,6 +99,19 @@ def test_apg_return_by_hand():
     np.testing.assert_allclose(jax.grad(losses.apg_return)(rewards), np.full((2, 2), 0.5))
 
 
+def test_apg_median_clip_caps_each_env_s_action_gradient_at_the_batch_median():
+    from dax_algos.rl.apg import median_clipped
+
+    # the rows' cotangents have norms 1, 2, 5 and 100 (and one zero row): median 2, so
+    # the 5- and 100-long rows shrink to length 2 along their own direction
+    w = jnp.asarray([[1.0, 0.0], [0.0, 2.0], [3.0, 4.0], [60.0, -80.0], [0.0, 0.0]])
+    z = jnp.linspace(-0.5, 0.5, 10).reshape(5, 2)
+    np.testing.assert_array_equal(median_clipped(z), z)
+    grad = jax.grad(lambda z: jnp.sum(w * median_clipped(z)))(z)
+    np.testing.assert_allclose(grad, [[1.0, 0.0], [0.0, 2.0], [1.2, 1.6], [1.2, -1.6],
+                                      [0.0, 0.0]], rtol=1e-6)
+
+
 SHAC_REWARDS = jnp.asarray([[1.0, 1.0], [2.0, 1.0], [4.0, 1.0]])
 SHAC_DONE = jnp.asarray([[False, False], [True, False], [False, True]])
 SHAC_TAIL = jnp.asarray([8.0, 100.0])

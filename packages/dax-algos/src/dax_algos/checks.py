@@ -7,6 +7,12 @@ import dataclasses
 
 import numpy as np
 
+#: Field metadata (``dataclasses.field(metadata=OMIT_DEFAULT)``) marking a config field
+#: added after rows were measured, whose default leaves the method as it was: at that
+#: default it is left out of the config's digest (:func:`dax_algos.bench.provenance.
+#: config_digest`), so adding the field does not make the earlier rows stale.
+OMIT_DEFAULT = {"digest": "omit_default"}
+
 
 def check_positive_int(name: str, value) -> None:
     """``value`` is an ``int`` (not a ``bool``) greater than 0."""

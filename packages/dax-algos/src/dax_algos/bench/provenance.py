@@ -51,6 +51,7 @@ import dax_tasks
 from dax_tasks.core.registry import PARAM_OVERRIDES, check_overrides
 
 from .. import registry
+from ..checks import OMIT_DEFAULT
 from . import rundir
 from .equivalence import LEDGER, forward_equivalent
 
@@ -70,8 +71,14 @@ def _digest(text: str) -> str:
 
 
 def config_digest(config) -> str:
-    """12 hex digits of a method config (a frozen dataclass): its class and every field."""
-    return _digest(json.dumps(rundir.canonical(config), sort_keys=True))
+    """12 hex digits of a method config (a frozen dataclass): its class and every field,
+    except a field marked :data:`OMIT_DEFAULT` while it holds its default."""
+    data = rundir.canonical(config)
+    for f in dataclasses.fields(config):
+        if f.metadata.get("digest") == OMIT_DEFAULT["digest"] \
+                and getattr(config, f.name) == f.default:
+            del data[f.name]
+    return _digest(json.dumps(data, sort_keys=True))
 
 
 def spec_digest(spec) -> str:

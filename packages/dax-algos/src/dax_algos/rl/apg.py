@@ -27,7 +27,7 @@ import dax_tasks
 
 from .. import nets
 from ..actions import to_action
-from ..checks import check_fields
+from ..checks import OMIT_DEFAULT, check_fields
 from ..learner import Learner, Policy
 from ..mlp_policy import (
     ObsNorm,
@@ -42,6 +42,35 @@ from . import losses
 from .training import training_params, update_metrics
 
 OBJECTIVES = ("sum", "final")
+#: What the backward pass does to the gradient reaching each env step's action from the
+#: simulator (``APGConfig.action_grad``).
+ACTION_GRADS = ("raw", "median_clip")
+
+
+@jax.custom_vjp
+def median_clipped(z):
+    """Identity on the batch of actions ``z`` (num_envs, action_dim); in the backward
+    pass, each env's row of the cotangent is scaled down to the median of the rows' norms
+    where it is longer (shorter rows, zero rows included, pass unchanged).
+
+    A heavy-tailed batch gradient (one env's step through contact many orders larger than
+    the others') then moves the policy no more than a typical env's does, while keeping
+    each row's direction; the median is of this step's batch, so no scale is chosen by
+    hand."""
+    return z
+
+
+def _median_clipped_fwd(z):
+    return z, None
+
+
+def _median_clipped_bwd(_, g):
+    norm = jnp.sqrt(jnp.sum(g * g, axis=-1, keepdims=True))
+    cap = jnp.median(norm)
+    return (g * jnp.minimum(1.0, cap / jnp.maximum(norm, 1e-30)),)
+
+
+median_clipped.defvjp(_median_clipped_fwd, _median_clipped_bwd)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +84,8 @@ class APGConfig:
     frame: ``"table"`` (the task's observation and actions) or ``"object"`` (a macro
     task's in the object's own frame, :class:`dax_tasks.ObjectFrame`); lr_schedule:
     ``"constant"`` or ``"linear"`` (to 0 over the run's updates, :data:`dax_algos.optim.
-    LR_SCHEDULES`)."""
+    LR_SCHEDULES`); action_grad: ``"raw"``, or ``"median_clip"`` to clip each env's
+    action gradient at every step to the batch's median norm (:func:`median_clipped`)."""
 
     total_env_steps: int = 20_000
     num_envs: int = 4
@@ -72,6 +102,7 @@ class APGConfig:
     aux_weight: float = 1.0
     objective: str = "sum"
     lr_schedule: str = "constant"
+    action_grad: str = dataclasses.field(default="raw", metadata=OMIT_DEFAULT)
     n_eval: int = 20
 
     def __post_init__(self):
@@ -80,6 +111,9 @@ class APGConfig:
         check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
                      positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
+        if self.action_grad not in ACTION_GRADS:
+            raise ValueError(f"unknown action_grad {self.action_grad!r}; valid: "
+                             f"{', '.join(ACTION_GRADS)}")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; valid: "
                              f"{', '.join(OBJECTIVES)}")
@@ -121,8 +155,10 @@ def make_rollout(env, venv, pnet, config, window: int):
         mean, _ = pnet.apply(policy_params, norm(feats, config.normalize_obs))
         if config.action_noise > 0:
             mean = mean + config.action_noise * jax.random.normal(k, mean.shape)
-        obs, state, reward, done, info = venv.step(state, to_action(env, jnp.tanh(mean)),
-                                                   params)
+        z = jnp.tanh(mean)
+        if config.action_grad == "median_clip":
+            z = median_clipped(z)
+        obs, state, reward, done, info = venv.step(state, to_action(env, z), params)
         return (obs, state), (feats, reward, done, info)
 
     def rollout(policy_params, norm, obs, state, key, params):
