@@ -18,8 +18,9 @@ Usage::
         --cmd "python -m benchmarks.rl_speed --json --tasks fold_cloth1 --methods apg --reps 3" \\
         --out benchmarks/results/DATE-training-speed-CHANGE.jsonl
 
-``--out`` is JSON lines, appended record by record as each command finishes (a run cut off
-keeps what it finished; :func:`main` refuses an ``--out`` that exists unless ``--append``).
+``--out`` is JSON lines, appended record by record as each command prints them (a run cut
+off, by Ctrl-C or SIGTERM, keeps what was written and removes its worktrees; :func:`main`
+refuses an ``--out`` that exists unless ``--append``).
 The table of such a file: ``python -m benchmarks.tables rl_speed_before_after FILE``.
 """
 
@@ -29,6 +30,7 @@ import argparse
 import json
 import os
 import shlex
+import signal
 import subprocess
 import sys
 import tempfile
@@ -110,14 +112,19 @@ def run_arms(repo: Path, commits: dict, commands: list, order, out: Path, workdi
             for cmd in commands:
                 proc = subprocess.Popen(cmd, cwd=trees[code], env=env, text=True,
                                         stdout=subprocess.PIPE)
-                for line in proc.stdout:
-                    rec = tag(line, arm, code, commits[code], load)
-                    if rec is None:
-                        print(line, end="", file=log)
-                        continue
-                    with open(out, "a") as f:  # one whole line per record
-                        f.write(json.dumps(rec) + "\n")
-                    written += 1
+                try:
+                    for line in proc.stdout:
+                        rec = tag(line, arm, code, commits[code], load)
+                        if rec is None:
+                            print(line, end="", file=log)
+                            continue
+                        with open(out, "a") as f:  # one whole line per record
+                            f.write(json.dumps(rec) + "\n")
+                        written += 1
+                finally:
+                    if proc.poll() is None:  # stopped from outside: stop the command too
+                        proc.terminate()
+                        proc.wait()
                 if proc.wait() != 0:
                     raise RuntimeError(f"arm {arm} ({code}): {shlex.join(cmd)} exited "
                                        f"{proc.returncode}")
@@ -154,6 +161,9 @@ def main(argv=None) -> int:
     except ValueError as err:
         p.error(str(err))
     commands = [shlex.split(c) for c in args.cmd]
+    # a run stopped with SIGTERM (kill, a job scheduler) unwinds like Ctrl-C: the running
+    # command is stopped and the worktrees are removed; the records written stay
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="before-after-") as tmp:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)

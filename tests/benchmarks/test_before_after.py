@@ -73,3 +73,31 @@ def test_a_failing_command_stops_the_run_and_keeps_what_it_wrote(repo, tmp_path)
     assert rc == 1
     recs = [json.loads(line) for line in out.read_text().splitlines()]
     assert [(r["arm"], r["value"]) for r in recs] == [(1, 1)]
+
+
+def test_sigterm_stops_the_command_and_removes_the_worktrees(repo, tmp_path):
+    import os
+    import signal
+    import sys
+    import time
+    from pathlib import Path
+
+    out, started = tmp_path / "out.jsonl", tmp_path / "started"
+    code = f"open({str(started)!r}, 'w'); import time; time.sleep(60)"
+    slow = f'python -c "{code}"'
+    root = Path(before_after.__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.before_after", "--repo",
+                             str(repo), "--before", "HEAD~1", "--after", "HEAD", "--cmd",
+                             "python bench.py", "--cmd", slow, "--out", str(out)],
+                            cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    deadline = time.monotonic() + 60
+    while not started.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert started.exists(), "the slow command never started"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=30) != 0
+    listed = subprocess.run(["git", "-C", str(repo), "worktree", "list"], text=True,
+                            capture_output=True).stdout.strip().splitlines()
+    assert len(listed) == 1, listed
+    recs = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [(r["arm"], r["value"]) for r in recs] == [(1, 1)]
