@@ -17,13 +17,6 @@ from dax_data import fileformat as ff
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory):
-    out = dict(os.environ)
-    out["DAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
-    return out
-
-
-@pytest.fixture(scope="module")
 def demo(env, tmp_path_factory):
     path = tmp_path_factory.mktemp("demo") / "demo.h5"
     proc = run(env, "generate", "--task", TASK, "--episodes", 3, "--seed", 0, "--out", path,

@@ -3,26 +3,17 @@ and resumed bit for bit, with scene overrides), goals and score. The commands on
 recorded file: ``test_cli.py`` (two files, so that a parallel test run splits them)."""
 
 import json
-import os
 import signal
 import subprocess
 import time
 
 import numpy as np
-import pytest
 from data_cli_helpers import CMD, SMALL, TASK, assert_one_line_error, read_all, run
 
 import dax_data
 import dax_tasks
 from dax_data import fileformat as ff
 from dax_tasks.core import goals
-
-
-@pytest.fixture(scope="module")
-def env(tmp_path_factory):
-    out = dict(os.environ)
-    out["DAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
-    return out
 
 
 def test_interrupted_generate_resumes_with_earlier_episodes_bit_identical(env, tmp_path):
