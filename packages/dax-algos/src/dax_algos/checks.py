@@ -14,6 +14,13 @@ import numpy as np
 OMIT_DEFAULT = {"digest": "omit_default"}
 
 
+def check_choice(name: str, value, valid) -> None:
+    """``value`` is one of ``valid``; else ``ValueError("unknown NAME VALUE; valid: ...")``
+    listing them."""
+    if value not in valid:
+        raise ValueError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
+
+
 def check_positive_int(name: str, value) -> None:
     """``value`` is an ``int`` (not a ``bool``) greater than 0."""
     if not (isinstance(value, int) and not isinstance(value, bool) and value > 0):

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from types import MappingProxyType
 from typing import Any
 
+from .checks import check_choice
 from .learner import Learner, learner_episode
 from .planning.planner import Planner, episode_env_steps, make_episode
 
@@ -86,16 +87,13 @@ class Method:
     uses_gradients: bool = False
 
     def __post_init__(self):
-        if self.family not in FAMILIES:
-            raise ValueError(f"unknown method family {self.family!r}; valid: "
-                             f"{', '.join(FAMILIES)}")
+        check_choice("method family", self.family, FAMILIES)
         object.__setattr__(self, "budgets", MappingProxyType(dict(self.budgets)))
 
     def config(self, budget: str = "full", task: str | None = None, **overrides):
         """The config for ``budget`` on ``task``, with ``overrides`` (nested configs take a
         dict of their own fields)."""
-        if budget not in BUDGETS:
-            raise ValueError(f"unknown budget {budget!r}; valid: {', '.join(BUDGETS)}")
+        check_choice("budget", budget, BUDGETS)
         heavy, own = f"{budget}_heavy", f"{budget}@{task}"
         key = (own if own in self.budgets
                else heavy if task in HEAVY_TASKS and heavy in self.budgets else budget)

@@ -22,6 +22,8 @@ import jax.numpy as jnp
 
 import dax_tasks
 
+from .checks import check_choice
+
 #: Where an MLP policy sees the scene from (its config's ``frame``): ``table`` (the task's
 #: own observation and actions) or ``object`` (:class:`dax_tasks.ObjectFrame`: a macro
 #: task's points and actions in the object's own frame, its place and heading on the table
@@ -31,8 +33,7 @@ FRAMES = ("table", "object")
 
 def check_frame(frame: str) -> None:
     """``ValueError`` naming the valid frames unless ``frame`` is one of :data:`FRAMES`."""
-    if frame not in FRAMES:
-        raise ValueError(f"unknown frame {frame!r}; valid: {', '.join(FRAMES)}")
+    check_choice("frame", frame, FRAMES)
 
 
 def policy_env(env, config):

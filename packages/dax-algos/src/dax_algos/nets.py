@@ -24,13 +24,14 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
+from .checks import check_choice
+
 ACTIVATIONS: dict[str, Callable] = {"swish": nnx.swish, "tanh": jnp.tanh, "relu": nnx.relu,
                                     "elu": nnx.elu}
 
 
 def _check_activation(name: str) -> Callable:
-    if name not in ACTIVATIONS:
-        raise ValueError(f"unknown activation {name!r}; valid: {', '.join(ACTIVATIONS)}")
+    check_choice("activation", name, ACTIVATIONS)
     return ACTIVATIONS[name]
 
 

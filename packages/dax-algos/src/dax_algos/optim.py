@@ -7,6 +7,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from .checks import check_choice
+
 OPTIMISERS = ("adam", "sgd")
 #: Learning-rate schedules: ``constant``, or ``linear`` from the learning rate to 0 over
 #: the run's optimiser steps (as SHAC's original code decays its rates).
@@ -15,9 +17,7 @@ LR_SCHEDULES = ("constant", "linear")
 
 def check_lr_schedule(schedule: str) -> None:
     """Raise a ValueError naming the valid schedules when ``schedule`` is not one."""
-    if schedule not in LR_SCHEDULES:
-        raise ValueError(f"unknown lr_schedule {schedule!r}; valid: "
-                         f"{', '.join(LR_SCHEDULES)}")
+    check_choice("lr_schedule", schedule, LR_SCHEDULES)
 
 
 def make_optimiser(learning_rate: float, max_grad_norm: float | None,
@@ -27,8 +27,7 @@ def make_optimiser(learning_rate: float, max_grad_norm: float | None,
     """``[zero_nans] -> [clip_by_global_norm(max_grad_norm)] -> adam | sgd``, minimising;
     ``max_grad_norm=None`` clips nothing. ``lr_schedule="linear"`` decays the rate from
     ``learning_rate`` to 0 over ``steps`` optimiser steps (required then)."""
-    if optimiser not in OPTIMISERS:
-        raise ValueError(f"unknown optimiser {optimiser!r}; valid: {', '.join(OPTIMISERS)}")
+    check_choice("optimiser", optimiser, OPTIMISERS)
     check_lr_schedule(lr_schedule)
     rate = learning_rate
     if lr_schedule == "linear":

@@ -54,7 +54,7 @@ import dax_tasks
 
 from .. import nets
 from ..actions import to_action
-from ..checks import check_fields
+from ..checks import check_choice, check_fields
 from ..learner import Learner, Policy, UpdateMetrics
 from ..mlp_policy import ObsNorm, batch_features, deterministic_act, feature_dim
 from ..optim import guarded_update, make_optimiser
@@ -94,13 +94,10 @@ class ILDConfig:
                      positive=("learning_rate",),
                      non_negative=("object_weight", "effector_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
-        if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"unknown weighting {self.weighting!r}; valid: "
-                             f"{', '.join(WEIGHTINGS)}")
+        check_choice("weighting", self.weighting, WEIGHTINGS)
         if self.starts not in ("random", "demo"):
             raise ValueError(f"starts must be 'random' or 'demo', got {self.starts!r}")
-        if self.align not in ALIGNS:
-            raise ValueError(f"unknown align {self.align!r}; valid: {', '.join(ALIGNS)}")
+        check_choice("align", self.align, ALIGNS)
 
     def window_for(self, env) -> int:
         return env.horizon if self.window is None else min(self.window, env.horizon)

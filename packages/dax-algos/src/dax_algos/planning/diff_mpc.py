@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import optax
 
 from ..actions import to_action
-from ..checks import check_fields
+from ..checks import check_choice, check_fields
 from ..episode import PlanStats
 from ..optim import OPTIMISERS
 from ..optim import make_optimiser as chain_optimiser
@@ -52,9 +52,7 @@ class DiffMPCConfig:
     def __post_init__(self):
         check_fields(self, ints=("steps", "horizon"), positive=("learning_rate",),
                      optional_positive=("max_grad_norm",))
-        if self.optimiser not in OPTIMISERS:
-            raise ValueError(f"unknown optimiser {self.optimiser!r}; valid: "
-                             f"{', '.join(OPTIMISERS)}")
+        check_choice("optimiser", self.optimiser, OPTIMISERS)
         check_objective(self.objective)
 
 

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 
 from ..actions import to_action
+from ..checks import check_choice
 from ..episode import EpisodeOutput
 
 OBJECTIVES = ("final", "sum")
@@ -51,9 +52,7 @@ def plan_length(env, horizon: int) -> int:
 
 def check_objective(objective: str) -> None:
     """``objective`` is one of :data:`OBJECTIVES` (``ValueError`` listing them if not)."""
-    if objective not in OBJECTIVES:
-        raise ValueError(f"unknown planning objective {objective!r}; "
-                         f"valid: {', '.join(OBJECTIVES)}")
+    check_choice("planning objective", objective, OBJECTIVES)
 
 
 def make_objective(env, objective: str = "final") -> Callable:

@@ -27,7 +27,7 @@ import dax_tasks
 
 from .. import nets
 from ..actions import to_action
-from ..checks import OMIT_DEFAULT, check_fields
+from ..checks import OMIT_DEFAULT, check_choice, check_fields
 from ..learner import Learner, Policy
 from ..mlp_policy import (
     ObsNorm,
@@ -111,12 +111,8 @@ class APGConfig:
         check_fields(self, ints=("total_env_steps", "num_envs", "n_eval"),
                      positive=("learning_rate",), non_negative=("action_noise", "aux_weight"),
                      optional_ints=("window",), optional_positive=("max_grad_norm",))
-        if self.action_grad not in ACTION_GRADS:
-            raise ValueError(f"unknown action_grad {self.action_grad!r}; valid: "
-                             f"{', '.join(ACTION_GRADS)}")
-        if self.objective not in OBJECTIVES:
-            raise ValueError(f"unknown objective {self.objective!r}; valid: "
-                             f"{', '.join(OBJECTIVES)}")
+        check_choice("action_grad", self.action_grad, ACTION_GRADS)
+        check_choice("objective", self.objective, OBJECTIVES)
 
     def window_for(self, env) -> int:
         return env.horizon if self.window is None else self.window
