@@ -64,11 +64,11 @@ def remove_worktree(repo: Path, where: Path) -> None:
                    check=False)
 
 
-def code_env(tree: Path, cache: Path, base: dict | None = None) -> dict:
-    """The environment of a command run on the code of ``tree``: its packages' ``src``
-    folders and its root first on ``PYTHONPATH``, ``JAX_COMPILATION_CACHE_DIR`` at
-    ``cache``."""
-    env = dict(os.environ if base is None else base)
+def code_env(tree: Path, cache: Path) -> dict:
+    """The environment of a command run on the code of ``tree``: this process's, with the
+    tree's packages' ``src`` folders and its root first on ``PYTHONPATH`` and
+    ``JAX_COMPILATION_CACHE_DIR`` at ``cache``."""
+    env = dict(os.environ)
     paths = sorted(str(p) for p in (tree / "packages").glob("*/src"))
     env["PYTHONPATH"] = os.pathsep.join([*paths, str(tree)]
                                         + ([env["PYTHONPATH"]] if env.get("PYTHONPATH")
