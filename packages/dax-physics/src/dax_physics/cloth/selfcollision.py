@@ -384,8 +384,13 @@ def _listed_pairs_vjp(cfg, pairs, xt, vt, ct):
     i, j, g = _pair_rows(pairs, xt, vt)
     rows = jnp.concatenate([ct, jnp.zeros_like(ct[:1])]).T  # (V, 4)
     f_bar = rows[i] - rows[j]
-    _, pull = jax.vjp(lambda g: _row_forces(cfg, g, i, j), g)
-    g_bar = pull(f_bar)[0]  # (n, 8)
+    cols = [g[:, c] for c in range(6)]  # d, dv by component
+    _, pull = jax.vjp(lambda *cols: _pair_force(cfg, cols[:3], cols[3:], i != j), *cols)
+    # the six column cotangents stacked once, into a buffer of their own: as the
+    # cotangent of g's slices (pads summed) or fused into the scatter's concatenation,
+    # XLA:CPU recomputed the contact law's reverse pass for every column it wrote
+    bars = pull([f_bar[:, c] for c in range(3)])
+    g_bar = materialise(jnp.stack([*bars, *[jnp.zeros_like(bars[0])] * 2], axis=1))  # (n, 8)
     out = jnp.zeros((V, 8), xt.dtype).at[jnp.concatenate([i, j])].add(
         jnp.concatenate([g_bar, -g_bar]))
     return out[:, :3].T, out[:, 3:6].T
