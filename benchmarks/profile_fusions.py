@@ -16,14 +16,18 @@ wall time when two threads share a loop). Ops are sorted into:
 - ``other``: copies and loop bookkeeping with no JAX operation recorded.
 
 ``--workload task:NAME[@RESOLUTION]`` profiles one env step of a task instead (its summed
-reward as a function of the action). Each op's time is also summed per MPM substep stage
-(``by_stage``: the ``jax.named_scope`` of ``dax_physics.mpm.substep``'s stages, crossed with
-the categories above; ``other`` outside the stages).
+reward as a function of the action). ``--workload train:METHOD:TASK`` profiles a learner's
+whole jitted ``train`` for one update (its full-budget config with ``total_env_steps`` one
+update's worth and one evaluation episode, as :mod:`benchmarks.rl_speed` builds it; it
+contains its own gradient, so ``--mode`` must be ``fwd``). Each op's time is also summed per
+MPM substep stage (``by_stage``: the ``jax.named_scope`` of ``dax_physics.mpm.substep``'s
+stages, crossed with the categories above; ``other`` outside the stages).
 
 One JSON document to stdout and to ``--out``:
 
     python -m benchmarks.profile_fusions --workload fluid-s1 --mode grad --top 25
     python -m benchmarks.profile_fusions --workload task:whip_rope@reference --mode fwd
+    python -m benchmarks.profile_fusions --workload train:apg:unfold_cloth3 --mode fwd --top 10
 """
 
 from __future__ import annotations
@@ -96,10 +100,39 @@ def task_workload(spec: str):
     return loss, action
 
 
+def train_workload(spec: str):
+    """``(train, key)`` of ``spec`` = ``train:METHOD:TASK``: the method's ``train`` for one
+    update (see the module docstring), as a function of its ``PRNGKey``."""
+    import jax
+
+    import dax_tasks
+    from benchmarks.rl_speed import RL_METHODS, _steps_per_update
+    from dax_algos import registry
+
+    _, method, task = spec.split(":")
+    if method not in RL_METHODS:
+        raise ValueError(f"train workloads take one of {', '.join(RL_METHODS)}, got "
+                         f"{method!r}")
+    env = dax_tasks.make(task)
+    m = registry.get(method)
+    per = _steps_per_update(method, m.config("full", task), env)
+    train = m.learner.make_train(env, m.config("full", task, total_env_steps=per, n_eval=1))
+    params = env.default_params
+    return (lambda key: train(key, params)), jax.random.PRNGKey(0)
+
+
+def _workload(name: str):
+    if name.startswith("task:"):
+        return task_workload(name)
+    if name.startswith("train:"):
+        return train_workload(name)
+    return workload(name)
+
+
 def profile(name: str, mode: str, calls: int, top: int) -> dict:
     import jax
 
-    loss, arg = task_workload(name) if name.startswith("task:") else workload(name)
+    loss, arg = _workload(name)
     fn = jax.jit(jax.grad(loss) if mode == "grad" else loss).lower(arg).compile()
     ops = {m.group(1): (m.group(2), m.group(3)) for m in _INSTRUCTION.finditer(fn.as_text())}
     for _ in range(2):
@@ -142,15 +175,21 @@ def profile(name: str, mode: str, calls: int, top: int) -> dict:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--workload", default="fluid-s1",
-                   help=f"one of {', '.join(WORKLOADS)}, or task:NAME[@RESOLUTION] (one env "
-                        "step of a task, e.g. task:whip_rope@reference)")
+                   help=f"one of {', '.join(WORKLOADS)}, task:NAME[@RESOLUTION] (one env "
+                        "step of a task, e.g. task:whip_rope@reference), or "
+                        "train:METHOD:TASK (one update of an RL method's train, --mode fwd)")
     p.add_argument("--mode", default="grad", choices=["fwd", "grad"])
     p.add_argument("--calls", type=int, default=3)
     p.add_argument("--top", type=int, default=25)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
-    if args.workload not in WORKLOADS and not args.workload.startswith("task:"):
+    if args.workload not in WORKLOADS and not args.workload.startswith(("task:", "train:")):
         p.error(f"unknown workload {args.workload!r}")
+    if args.workload.startswith("train:"):
+        if args.workload.count(":") != 2:
+            p.error(f"a train workload is train:METHOD:TASK, got {args.workload!r}")
+        if args.mode != "fwd":
+            p.error("a train workload holds its own gradient: profile it with --mode fwd")
     write_report(profile(args.workload, args.mode, args.calls, args.top), args.out)
 
 
