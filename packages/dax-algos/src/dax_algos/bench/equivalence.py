@@ -41,6 +41,11 @@ class Equivalence:
 _VJP = ("benchmarks/results/2026-12-02-forward-programs-before.json (f7c51af) and "
         "-after.json (b759f58): the self-collision force's reverse pass written out")
 
+#: The forward-programs files of the reverse pass's column-wise pullback.
+_COLUMNS = ("benchmarks/results/2026-12-05-forward-programs-before.json (042fd19) and "
+            "-after.json (e8f474a): the self-collision reverse pass's contact-law pullback "
+            "taken column by column")
+
 #: The ledger, oldest first.
 LEDGER: tuple[Equivalence, ...] = (
     Equivalence('fold_cloth1', '4879dc825ad7', '84a593dd0ce9', _VJP),
@@ -48,6 +53,11 @@ LEDGER: tuple[Equivalence, ...] = (
     Equivalence('fold_tshirt', '3ca63f95f3d6', '3e90375c5f8a', _VJP),
     Equivalence('unfold_cloth1', 'f631a420f56c', 'e6e715750b1b', _VJP),
     Equivalence('unfold_cloth3', '20b6f156c30d', '39aade69b886', _VJP),
+    Equivalence('fold_cloth1', '84a593dd0ce9', '1578c574a55a', _COLUMNS),
+    Equivalence('fold_cloth3', 'efcd33c944ba', '83d24494841d', _COLUMNS),
+    Equivalence('fold_tshirt', '3e90375c5f8a', 'edffb826ed91', _COLUMNS),
+    Equivalence('unfold_cloth1', 'e6e715750b1b', '4a7dd51663d7', _COLUMNS),
+    Equivalence('unfold_cloth3', '39aade69b886', '4fc8e025eaec', _COLUMNS),
 )
 
 
