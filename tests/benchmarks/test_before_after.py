@@ -2,7 +2,12 @@
 every record carries its arm's tags."""
 
 import json
+import os
+import signal
 import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -76,12 +81,6 @@ def test_a_failing_command_stops_the_run_and_keeps_what_it_wrote(repo, tmp_path)
 
 
 def test_sigterm_stops_the_command_and_removes_the_worktrees(repo, tmp_path):
-    import os
-    import signal
-    import sys
-    import time
-    from pathlib import Path
-
     out, started = tmp_path / "out.jsonl", tmp_path / "started"
     code = f"open({str(started)!r}, 'w'); import time; time.sleep(60)"
     slow = f'python -c "{code}"'
