@@ -107,7 +107,12 @@ VARIANTS = {
             # the raw cloth gradient norms span orders of magnitude between updates: a
             # batch gradient led by one env's step through contact; each env's action
             # gradient clipped to the batch's median norm at every step
-            "median_clip": {"action_grad": "median_clip"}},
+            "median_clip": {"action_grad": "median_clip"},
+            # SHAC, above its untrained policy on Fold-T-shirt and Unfold-Cloth-1 where APG
+            # is not, trains a stochastic policy (pre-tanh std 0.37 at its initial log-std
+            # -1): the same exploration noise on APG's training actions, a Gaussian
+            # smoothing of a return that is rough in the picks
+            "noise": {"action_noise": 0.37}},
     "shac": {"baseline": {}, "raw_obs": {"normalize_obs": False}, "window1": {"window": 1},
              "object_frame": {"frame": "object"},
              "no_clip": {"max_grad_norm": None}, "no_aux": {"aux_weight": 0.0},
