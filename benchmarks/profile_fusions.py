@@ -106,7 +106,7 @@ def train_workload(spec: str):
     import jax
 
     import dax_tasks
-    from benchmarks.rl_speed import RL_METHODS, _steps_per_update
+    from benchmarks.rl_speed import RL_METHODS, config_for_updates
     from dax_algos import registry
 
     _, method, task = spec.split(":")
@@ -114,9 +114,8 @@ def train_workload(spec: str):
         raise ValueError(f"train workloads take one of {', '.join(RL_METHODS)}, got "
                          f"{method!r}")
     env = dax_tasks.make(task)
-    m = registry.get(method)
-    per = _steps_per_update(method, m.config("full", task), env)
-    train = m.learner.make_train(env, m.config("full", task, total_env_steps=per, n_eval=1))
+    config, _ = config_for_updates(method, task, env, 1, n_eval=1)
+    train = registry.get(method).learner.make_train(env, config)
     params = env.default_params
     return (lambda key: train(key, params)), jax.random.PRNGKey(0)
 

@@ -39,6 +39,17 @@ def _steps_per_update(method: str, config, env) -> int:
     return config.num_envs * config.window_for(env)
 
 
+def config_for_updates(method: str, task: str, env, updates: int, overrides=None, **fields):
+    """``(config, steps per update)``: ``method``'s full-budget config on ``task`` (with
+    ``overrides``) whose ``total_env_steps`` is ``updates`` updates' worth, ``fields`` set
+    on top (what :func:`measure` and :mod:`benchmarks.profile_fusions` train)."""
+    m = registry.get(method)
+    overrides = overrides or {}
+    per = _steps_per_update(method, m.config("full", task, **overrides), env)
+    config = m.config("full", task, **{**overrides, "total_env_steps": per * updates, **fields})
+    return config, per
+
+
 def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None,
             task_overrides: dict | None = None, data=()) -> dict:
     """One record (see the module docstring); ``data``: what the method's ``train`` takes
@@ -51,7 +62,7 @@ def measure(task: str, method: str, reps: int = 3, overrides: dict | None = None
     record = {"task": task, "method": method, "steps_per_update": per}
     times = {}
     for updates in (1, 3):
-        cfg = m.config("full", task, **{**(overrides or {}), "total_env_steps": per * updates})
+        cfg, _ = config_for_updates(method, task, env, updates, overrides)
         train = m.learner.make_train(env, cfg)
         fn = jax.jit(train)
         compiled, compile_s = timed_compile(fn, jax.random.PRNGKey(0), params, *data)
