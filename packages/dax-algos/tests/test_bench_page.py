@@ -17,7 +17,7 @@ from algos_helpers import cheap_cloth_overrides, register_nan_planner
 from PIL import Image
 
 from dax_algos import registry
-from dax_algos.bench import episodes, page, rundir, runner, summary
+from dax_algos.bench import episodes, page, report, rundir, runner, summary
 from dax_algos.bench.equivalence import Equivalence, forward_equivalent
 from dax_algos.bench.grid import run_grid
 
@@ -140,6 +140,22 @@ def test_score_table_of_two_tasks_marks_each_tasks_best_and_ties():
     marked = [[table[0][i][1] for i, c in enumerate(r) if "best" in c[0]] for r in table[1:]]
     assert marked == [["x"], ["x", "y"]], marked
     assert table[2][3] == ["failed", "failed"]
+
+
+def test_seed_text_names_the_cells_whose_seeds_differ_from_the_rest():
+    def rows(task, method, seeds):
+        return [dict(task=task, method=method, seed=str(s)) for s in seeds]
+
+    same = rows("a", "x", range(5)) + rows("b", "y", range(5))
+    assert report.seed_text(same) == "0-4"
+    assert report.seed_text(rows("a", "x", [0, 2, 7])) == "0, 2, 7"
+    assert report.seed_text(rows("a", "x", [3])) == "3"
+    mixed = (rows("a", "x", range(10)) + rows("b", "x", range(10)) + rows("a", "y", range(10))
+             + rows("b", "y", range(10)) + rows("a", "z", range(5)) + rows("b", "z", range(5))
+             + rows("c", "x", range(5)) + rows("c", "y", range(5)) + rows("c", "z", range(5))
+             + rows("b", "w", [0]))
+    assert report.seed_text(mixed) == "0-4 (0: w on b; 0-9: x, y on a, b)"
+    assert report.seed_text([]) == ""
 
 
 def test_failed_runs_are_listed_with_their_cause(grid):

@@ -73,6 +73,46 @@ def se_note(methods) -> str:
     return "Cells: " + "; ".join(parts) + ". (n=1): one seed, no standard error."
 
 
+def span(seeds) -> str:
+    """Sorted ints as text: ``0-4`` for a run of consecutive seeds, else ``0, 2, 7``."""
+    seeds = sorted(seeds)
+    if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1:
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ", ".join(map(str, seeds))
+
+
+def seed_text(rows) -> str:
+    """Which seeds a table's cells hold: ``0-4`` when every (task, method) has the same
+    seeds; else the seeds most cells hold and, after them, each other set with its cells,
+    methods that share the same tasks named together, e.g. ``0-4 (0-9: ppo, apg on
+    fold_cloth1, unfold_cloth3)``. A table whose cells hold different numbers of seeds
+    must say so: their standard errors are over different n."""
+    cells = defaultdict(set)
+    for r in rows:
+        cells[(r["task"], r["method"])].add(int(r["seed"]))
+    order = list(dict.fromkeys(r["task"] for r in rows))
+    sets = defaultdict(list)  # seed set -> [(task, method)], in the rows' order
+    for cell, seeds in cells.items():
+        sets[tuple(sorted(seeds))].append(cell)
+    if not sets:
+        return ""
+    common = max(sets, key=lambda s: (len(sets[s]), -len(s)))  # ties: the fewer seeds
+    others = []
+    for seeds in sorted(sets, key=lambda s: (len(s), s)):
+        if seeds == common:
+            continue
+        tasks_of = defaultdict(list)
+        for task, method in sets[seeds]:
+            tasks_of[method].append(task)
+        by_tasks = defaultdict(list)  # the same tasks -> the methods that have them
+        for method, tasks in tasks_of.items():
+            by_tasks[tuple(sorted(tasks, key=order.index))].append(method)
+        cells_text = "; ".join(f"{', '.join(ms)} on {', '.join(ts)}"
+                               for ts, ms in by_tasks.items())
+        others.append(f"{span(seeds)}: {cells_text}")
+    return span(common) + (f" ({'; '.join(others)})" if others else "")
+
+
 UNTRAINED_NOTE = (" *untrained*: the learner's policy before training (its network at "
                   "initialisation), on the same evaluation starts, over the same seeds.")
 

@@ -111,10 +111,8 @@ def markdown_tables(out, budget: str | None = None, include_stale: bool = False,
     methods = list(methods) if methods else _order(registry.names(), rows, "method")
     lines = report.score_lines(rows, tasks, methods, stale, include_stale)
     n_stale = sum(bool(v) for v in stale.values())
-    seeds = sorted({int(r["seed"]) for r in rows})
-    span = f"{seeds[0]}-{seeds[-1]}" if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)) \
-        else ", ".join(map(str, seeds))
-    lines += ["", f"Rows: `{label or csv_path.as_posix()}`, {budget} budget, seeds {span}; "
+    lines += ["", f"Rows: `{label or csv_path.as_posix()}`, {budget} budget, "
+              f"seeds {report.seed_text(rows)}; "
               f"final-step r_gt. " + _provenance_text(rows, stale, n_stale, include_stale)]
     return "\n".join(lines) + "\n"
 
