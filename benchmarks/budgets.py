@@ -150,10 +150,10 @@ def render_table(path, budget=None, include_stale=False) -> str:
     rows, budget, note = curve_budgets(path, budget, include_stale)
     if not rows:
         raise ValueError(f"{path}: no learner rows in it")
-    lines = ["| task | method | env steps / seed | updates | training wall (s) | "
+    lines = ["| task | method | seeds | env steps / seed | updates | training wall (s) | "
              "Δ last fifth (± SE) | eval SE | verdict | to read: env steps / seed "
              "(training wall, s) | curve |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         delta = ("—" if not math.isfinite(r["delta"]) else
                  f"{r['delta']:+.3f} ± {0.0 if math.isnan(r['delta_se']) else r['delta_se']:.3f}")
@@ -161,12 +161,13 @@ def render_table(path, budget=None, include_stale=False) -> str:
                    + ("?" if r["to_read_wall_s"] is None or math.isnan(r["to_read_wall_s"])
                       else f"{r['to_read_wall_s']:,.0f}") + ")")
         lines.append(
-            f"| {r['task']} | {r['method']} | {r['env_steps']:.0f} | {r['updates']} | "
+            f"| {r['task']} | {r['method']} | {r['n']} | {r['env_steps']:.0f} | {r['updates']} | "
             f"{r['wall_s']:.0f} | {delta} | {r['eval_se']:.3f} | {r['verdict']} | "
             f"{to_read} | {'`' + r['curve'] + '`' if r['curve'] else '—'} |")
     lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget"
               + note
-              + f", {rows[0]['n']} training seeds per row where all ran. Curve: per update, "
+              + ". Seeds: the row's training seeds (its curves and evaluation scores). "
+              "Curve: per update, "
               "the mean final-step r_gt of the training episodes that ended in it. Δ: per "
               "seed, the mean over the last fifth of the updates minus the fifth before, mean "
               "± SE over seeds; flat when |Δ| is below the SE of the evaluation score (over "

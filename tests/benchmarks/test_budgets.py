@@ -71,9 +71,9 @@ def test_each_curve_is_judged_by_its_last_fifth_against_the_evaluation_se(tmp_pa
     assert (out["apg"]["env_steps"], out["apg"]["updates"], out["apg"]["wall_s"]) == (
         240, 20, 40.0)
     table = budgets.render_table(grid, include_stale=True)
-    assert "| fold_cloth1 | ild | 240 | 20 | 40 | +0.040 ± 0.000 |" in table, table
+    assert "| fold_cloth1 | ild | 2 | 240 | 20 | 40 | +0.040 ± 0.000 |" in table, table
     assert f"| too short | {steps:,} ({2.0 * updates:,.0f}) |" in table, table
-    assert "rising" in table and "2 training seeds" in table
+    assert "rising" in table and "Seeds: the row's training seeds" in table
 
 
 def test_a_grid_without_learner_rows_is_refused(tmp_path):
