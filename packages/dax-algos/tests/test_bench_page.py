@@ -155,6 +155,7 @@ def test_seed_text_names_the_cells_whose_seeds_differ_from_the_rest():
              + rows("c", "x", range(5)) + rows("c", "y", range(5)) + rows("c", "z", range(5))
              + rows("b", "w", [0]))
     assert report.seed_text(mixed) == "0-4 (0: w on b; 0-9: x, y on a, b)"
+    assert report.seed_text(mixed, tasks=["b", "a"]) == "0-4 (0: w on b; 0-9: x, y on b, a)"
     assert report.seed_text([]) == ""
 
 

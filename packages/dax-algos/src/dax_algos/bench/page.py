@@ -326,7 +326,7 @@ def write_page(out, rows: list[Mapping], run: Mapping, pictures: list, tasks: Se
     all_rows, rows = rows, report.counted(rows, stale, include_stale)
     tasks = [t for t in tasks if any(r["task"] == t for r in all_rows)]
     methods = [m for m in methods if any(r["method"] == m for r in all_rows)]
-    seeds = report.seed_text(all_rows)
+    seeds = report.seed_text(all_rows, tasks)
     budgets = sorted({r.get("budget", "") for r in rows})
     counts = {s: sum(r["status"] == s for r in all_rows)
               for s in ("ok", "failed", "skipped")}

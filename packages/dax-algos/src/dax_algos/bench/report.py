@@ -81,16 +81,17 @@ def span(seeds) -> str:
     return ", ".join(map(str, seeds))
 
 
-def seed_text(rows) -> str:
+def seed_text(rows, tasks=()) -> str:
     """Which seeds a table's cells hold: ``0-4`` when every (task, method) has the same
     seeds; else the seeds most cells hold and, after them, each other set with its cells,
     methods that share the same tasks named together, e.g. ``0-4 (0-9: ppo, apg on
     fold_cloth1, unfold_cloth3)``. A table whose cells hold different numbers of seeds
-    must say so: their standard errors are over different n."""
+    must say so: their standard errors are over different n. Tasks are named in the order
+    of ``tasks``, then of the rows."""
     cells = defaultdict(set)
     for r in rows:
         cells[(r["task"], r["method"])].add(int(r["seed"]))
-    order = list(dict.fromkeys(r["task"] for r in rows))
+    order = list(dict.fromkeys([*tasks, *(r["task"] for r in rows)]))
     sets = defaultdict(list)  # seed set -> [(task, method)], in the rows' order
     for cell, seeds in cells.items():
         sets[tuple(sorted(seeds))].append(cell)

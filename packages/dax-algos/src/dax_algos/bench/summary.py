@@ -112,7 +112,7 @@ def markdown_tables(out, budget: str | None = None, include_stale: bool = False,
     lines = report.score_lines(rows, tasks, methods, stale, include_stale)
     n_stale = sum(bool(v) for v in stale.values())
     lines += ["", f"Rows: `{label or csv_path.as_posix()}`, {budget} budget, "
-              f"seeds {report.seed_text(rows)}; "
+              f"seeds {report.seed_text(rows, tasks)}; "
               f"final-step r_gt. " + _provenance_text(rows, stale, n_stale, include_stale)]
     return "\n".join(lines) + "\n"
 
