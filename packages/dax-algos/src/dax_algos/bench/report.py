@@ -106,8 +106,8 @@ def seed_text(rows, tasks=()) -> str:
         for task, method in sets[seeds]:
             tasks_of[method].append(task)
         by_tasks = defaultdict(list)  # the same tasks -> the methods that have them
-        for method, tasks in tasks_of.items():
-            by_tasks[tuple(sorted(tasks, key=order.index))].append(method)
+        for method, its_tasks in tasks_of.items():
+            by_tasks[tuple(sorted(its_tasks, key=order.index))].append(method)
         cells_text = "; ".join(f"{', '.join(ms)} on {', '.join(ts)}"
                                for ts, ms in by_tasks.items())
         others.append(f"{span(seeds)}: {cells_text}")
