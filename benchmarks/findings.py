@@ -291,6 +291,80 @@ def versus_untrained(rows) -> list[dict]:
     return out
 
 
+def added_seeds(rows) -> list[dict]:
+    """The learner cells that hold seeds beyond the grid's common ones (the seed set most
+    (task, learner) cells with untrained scores hold; ties: the smaller set): per such
+    cell, :func:`versus_untrained` on the common seeds, on the added seeds alone and on
+    all of them (``common``, ``added``, ``all``), and the added seeds. What a reader needs
+    to judge a grid extended on some cells: how the verdict moved and what the new seeds
+    alone say."""
+    learner = [r for r in rows if r["status"] == "ok" and r.get("untrained_score", "") != ""]
+    cells: dict = {}
+    for r in learner:
+        cells.setdefault((r["task"], r["method"]), set()).add(int(r["seed"]))
+    if not cells:
+        return []
+    counts: dict = {}
+    for seeds in cells.values():
+        counts[frozenset(seeds)] = counts.get(frozenset(seeds), 0) + 1
+    common = max(counts, key=lambda s: (counts[s], -len(s)))
+    out = []
+    for (task, method), seeds in cells.items():
+        extra = seeds - common
+        if not extra:
+            continue
+        mine = [r for r in learner if (r["task"], r["method"]) == (task, method)]
+
+        def verdict_on(keep, mine=mine):
+            found = versus_untrained([r for r in mine if int(r["seed"]) in keep])
+            return found[0] if found else None
+
+        out.append({"task": task, "method": method, "common_seeds": sorted(common),
+                    "added_seeds": sorted(extra), "common": verdict_on(common),
+                    "added": verdict_on(extra), "all": verdict_on(seeds)})
+    return out
+
+
+def render_added_seeds(path, budget=None, include_stale=False) -> str:
+    """The table of :func:`added_seeds` of the grid at ``path`` (Markdown)."""
+    import dax_tasks
+    from dax_algos import registry
+    from dax_algos.bench import report
+
+    rows, budget, note = _grid_rows(path, budget, include_stale)
+    found = added_seeds(rows)
+    if not found:
+        raise ValueError(f"{path}: no learner cell holds more seeds than the others")
+    order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
+    methods = {m: i for i, m in enumerate(registry.names())}
+    found.sort(key=lambda f: (methods.get(f["method"], 99), order.get(f["task"], 99)))
+
+    def diff(f):
+        if f is None:
+            return "—"
+        d, sd = f["difference"]
+        return f"{d:+.3f} ± {sd:.3f}" if f["n"] > 1 else f"{d:+.3f} (n=1)"
+
+    def t_of(f):
+        d, sd = f["difference"]
+        return f" ({d / sd:.1f} SE)" if sd > 0 and f["n"] > 1 else ""
+
+    common = report.span(found[0]["common_seeds"])
+    lines = [f"| method | task | seeds {common} | verdict | added seeds | added alone | "
+             "all seeds | verdict |", "|---|---|---|---|---|---|---|---|"]
+    for f in found:
+        c, a = f["common"], f["all"]
+        lines.append(f"| {f['method']} | {f['task']} | {diff(c)} | "
+                     f"{c['verdict'] if c else '—'} | {report.span(f['added_seeds'])} | "
+                     f"{diff(f['added'])} | {diff(a)} | {a['verdict']}{t_of(a)} |")
+    lines += ["", f"From `{Path(path).as_posix()}`, {budget} budget" + note
+              + f": the learner cells holding seeds beyond {common}, the seeds most cells "
+              "hold. Trained − untrained: the paired difference over those seeds, mean ± "
+              "SE; above / below: by more than 2 SE; (x SE): the difference over all seeds "
+              "in its SE."]
+    return "\n".join(lines) + "\n"
+
+
 def render_untrained(path, budget=None, include_stale=False) -> str:
     """The learners-against-their-untrained-policy table of the grid at ``path``."""
     import dax_tasks

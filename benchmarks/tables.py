@@ -108,6 +108,10 @@ FILE_KINDS = {
     "untrained": ("benchmarks.findings", "render_untrained",
                   "each learner against its untrained policy, from a grid directory's "
                   "results.csv", 1),
+    "added_seeds": ("benchmarks.findings", "render_added_seeds",
+                    "each learner cell holding more seeds than the grid's others against "
+                    "its untrained policy on the common seeds, the added ones and all, "
+                    "from a grid directory's results.csv", 1),
     "budgets": ("benchmarks.budgets", "render_table",
                 "each learner's budget per task and whether its learning curve has "
                 "flattened, from a grid directory's results and learning curves", 1),
@@ -140,7 +144,7 @@ FILE_KINDS = {
 
 
 #: The kinds rendered from a grid directory's rows, which take ``--include-stale``.
-GRID_KINDS = ("findings", "untrained", "budgets", "training_throughput")
+GRID_KINDS = ("findings", "untrained", "added_seeds", "budgets", "training_throughput")
 
 
 def render_file_kind(kind: str, paths, include_stale: bool = False) -> str:

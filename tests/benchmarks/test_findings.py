@@ -76,6 +76,31 @@ def test_learners_against_their_untrained_policy_are_paired_by_seed(tmp_path):
     assert "1 above, 1 within, 1 below" in table, table
 
 
+def test_cells_extended_beyond_the_common_seeds_are_split_into_common_and_added(tmp_path):
+    grid = _grid(tmp_path, {
+        # seeds 0-1 within (+0.06, -0.04), seeds 2-3 above (+0.10 twice), all four +0.055
+        ("fold_cloth1", "apg"): [(0.46, 0.40), (0.36, 0.40), (0.50, 0.40), (0.50, 0.40)],
+        ("fold_cloth1", "ppo"): [(0.45, 0.40), (0.46, 0.40)],
+        ("fold_cloth3", "ppo"): [(0.45, 0.40), (0.46, 0.40)],
+        ("fold_cloth1", "random"): [0.4, 0.4, 0.4, 0.4],  # no untrained score: not a cell
+    })
+    rows = findings._grid_rows(grid, include_stale=True)[0]
+    (f,) = findings.added_seeds(rows)
+    assert (f["task"], f["method"]) == ("fold_cloth1", "apg")
+    assert f["common_seeds"] == [0, 1] and f["added_seeds"] == [2, 3]
+    assert f["common"]["difference"] == pytest.approx((0.01, 0.05))
+    assert f["added"]["difference"][0] == pytest.approx(0.10)
+    assert f["added"]["verdict"] == "above" and f["common"]["verdict"] == "within"
+    assert f["all"]["difference"][0] == pytest.approx(0.055) and f["all"]["n"] == 4
+    table = findings.render_added_seeds(grid, include_stale=True)
+    assert "| apg | fold_cloth1 | +0.010 ± 0.050 | within | 2-3 | +0.100 ± 0.000 |" in table, table
+    assert "beyond 0-1" in table
+    (tmp_path / "same").mkdir()
+    same = _grid(tmp_path / "same", {("fold_cloth1", "ppo"): [(0.45, 0.40), (0.46, 0.40)]})
+    with pytest.raises(ValueError, match="no learner cell holds more seeds"):
+        findings.render_added_seeds(same, include_stale=True)
+
+
 def test_a_path_without_results_is_refused_naming_it(tmp_path):
     with pytest.raises(ValueError, match="no results.csv"):
         findings.render_findings(tmp_path / "nothing")
