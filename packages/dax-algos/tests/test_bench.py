@@ -45,6 +45,7 @@ def test_runner_writes_csv_markdown_and_charts(grid):
     for m in ("random", "expert", "cem_mpc", "diff_mpc"):
         assert f"| {m} | " in md and "±" in md, md
     assert "final" in md  # the score definition is stated
+    assert "Seeds 0-1. Budget: quick." in md, md
     assert (out / f"chart_{TASK}.png").stat().st_size > 1000
 
 

@@ -237,13 +237,13 @@ def markdown(rows, task_order=(), method_order=(), title="DaX benchmark", stale=
     tasks = _order([r["task"] for r in rows], task_order)
     methods = _order([r["method"] for r in rows], method_order)
     budgets = sorted({r.get("budget", "") for r in rows})
-    seeds = sorted({int(r["seed"]) for r in rows}) if rows else []
+    seeds = seed_text(rows, tasks) or "none"
     used = counted(rows, stale, include_stale)
     groups = group_rows(used)
     lines = [f"# {md(title)}", "",
              "Episode score = the ground-truth reward r_gt = exp(-λ·D(s_T, g)) after the "
              "**final** step of the episode (evaluation uses r_gt only); failed runs are "
-             f"excluded and counted. Seeds {seeds}. Budget: {md(', '.join(budgets))}.", "",
+             f"excluded and counted. Seeds {md(seeds)}. Budget: {md(', '.join(budgets))}.", "",
              "## Score", "", *score_lines(rows, tasks, methods, stale, include_stale),
              "", "## Compute per run", "",
              "Mean wall time of the compiled episode [s] (compilation excluded; see "
