@@ -291,6 +291,19 @@ def versus_untrained(rows) -> list[dict]:
     return out
 
 
+def _in_table_order(found: list[dict]) -> list[dict]:
+    """``found`` (dicts with ``task`` and ``method``) sorted as the tables list them: by
+    the registry's method order, then the task order of :data:`dax_tasks.TASKS`; names
+    unknown to either last."""
+    import dax_tasks
+    from dax_algos import registry
+
+    order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
+    methods = {m: i for i, m in enumerate(registry.names())}
+    return sorted(found, key=lambda f: (methods.get(f["method"], 99),
+                                        order.get(f["task"], 99)))
+
+
 def added_seeds(rows) -> list[dict]:
     """The learner cells that hold seeds beyond the grid's common ones (the seed set most
     (task, learner) cells with untrained scores hold; ties: the smaller set): per such
@@ -298,16 +311,11 @@ def added_seeds(rows) -> list[dict]:
     all of them (``common``, ``added``, ``all``), and the added seeds. What a reader needs
     to judge a grid extended on some cells: how the verdict moved and what the new seeds
     alone say."""
+    from dax_algos.bench import report
+
     learner = [r for r in rows if r["status"] == "ok" and r.get("untrained_score", "") != ""]
-    cells: dict = {}
-    for r in learner:
-        cells.setdefault((r["task"], r["method"]), set()).add(int(r["seed"]))
-    if not cells:
-        return []
-    counts: dict = {}
-    for seeds in cells.values():
-        counts[frozenset(seeds)] = counts.get(frozenset(seeds), 0) + 1
-    common = max(counts, key=lambda s: (counts[s], -len(s)))
+    cells = report.cell_seeds(learner)
+    common = report.common_seeds(cells)
     out = []
     for (task, method), seeds in cells.items():
         extra = seeds - common
@@ -327,17 +335,12 @@ def added_seeds(rows) -> list[dict]:
 
 def render_added_seeds(path, budget=None, include_stale=False) -> str:
     """The table of :func:`added_seeds` of the grid at ``path`` (Markdown)."""
-    import dax_tasks
-    from dax_algos import registry
     from dax_algos.bench import report
 
     rows, budget, note = _grid_rows(path, budget, include_stale)
-    found = added_seeds(rows)
+    found = _in_table_order(added_seeds(rows))
     if not found:
         raise ValueError(f"{path}: no learner cell holds more seeds than the others")
-    order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
-    methods = {m: i for i, m in enumerate(registry.names())}
-    found.sort(key=lambda f: (methods.get(f["method"], 99), order.get(f["task"], 99)))
 
     def diff(f):
         if f is None:
@@ -367,14 +370,8 @@ def render_added_seeds(path, budget=None, include_stale=False) -> str:
 
 def render_untrained(path, budget=None, include_stale=False) -> str:
     """The learners-against-their-untrained-policy table of the grid at ``path``."""
-    import dax_tasks
-    from dax_algos import registry
-
     rows, budget, note = _grid_rows(path, budget, include_stale)
-    found = versus_untrained(rows)
-    order = {t: i for i, t in enumerate(dax_tasks.TASKS)}
-    methods = {m: i for i, m in enumerate(registry.names())}
-    found.sort(key=lambda f: (methods.get(f["method"], 99), order.get(f["task"], 99)))
+    found = _in_table_order(versus_untrained(rows))
 
     def cell(ms):
         m, s = ms

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import html
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -81,27 +81,39 @@ def span(seeds) -> str:
     return ", ".join(map(str, seeds))
 
 
-def seed_text(rows, tasks=()) -> str:
-    """Which seeds a table's cells hold: ``0-4`` when every (task, method) has the same
-    seeds; else the seeds most cells hold and, after them, each other set with its cells,
-    methods that share the same tasks named together, e.g. ``0-4 (0-9: ppo, apg on
-    fold_cloth1, unfold_cloth3)``. A table whose cells hold different numbers of seeds
-    must say so: their standard errors are over different n. Tasks are named in the order
-    of ``tasks``, then of the rows."""
+def cell_seeds(rows) -> dict:
+    """``{(task, method): {seed, ...}}``: the seeds each cell of ``rows`` holds."""
     cells = defaultdict(set)
     for r in rows:
         cells[(r["task"], r["method"])].add(int(r["seed"]))
-    order = list(dict.fromkeys([*tasks, *(r["task"] for r in rows)]))
-    sets = defaultdict(list)  # seed set -> [(task, method)], in the rows' order
-    for cell, seeds in cells.items():
-        sets[tuple(sorted(seeds))].append(cell)
-    if not sets:
+    return dict(cells)
+
+
+def common_seeds(cells) -> frozenset:
+    """The seed set most of ``cells`` (:func:`cell_seeds`) hold; ties: the smaller set,
+    then the one met first; empty for no cells."""
+    counts = Counter(frozenset(seeds) for seeds in cells.values())
+    return max(counts, key=lambda s: (counts[s], -len(s)), default=frozenset())
+
+
+def seed_text(rows, tasks=()) -> str:
+    """Which seeds a table's cells hold: ``0-4`` when every (task, method) has the same
+    seeds; else the seeds most cells hold (:func:`common_seeds`) and, after them, each
+    other set with its cells, methods that share the same tasks named together, e.g.
+    ``0-4 (0-9: ppo, apg on fold_cloth1, unfold_cloth3)``. A table whose cells hold
+    different numbers of seeds must say so: their standard errors are over different n.
+    Tasks are named in the order of ``tasks``, then of the rows."""
+    cells = cell_seeds(rows)
+    if not cells:
         return ""
-    common = max(sets, key=lambda s: (len(sets[s]), -len(s)))  # ties: the fewer seeds
+    common = common_seeds(cells)
+    order = list(dict.fromkeys([*tasks, *(r["task"] for r in rows)]))
+    sets = defaultdict(list)  # each other seed set -> [(task, method)], in the rows' order
+    for cell, seeds in cells.items():
+        if seeds != common:
+            sets[tuple(sorted(seeds))].append(cell)
     others = []
     for seeds in sorted(sets, key=lambda s: (len(s), s)):
-        if seeds == common:
-            continue
         tasks_of = defaultdict(list)
         for task, method in sets[seeds]:
             tasks_of[method].append(task)
