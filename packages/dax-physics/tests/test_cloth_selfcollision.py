@@ -217,6 +217,38 @@ def test_batched_lists_equal_single_lists():
     assert int(batch.neighbours.builds[0]) == 1 < int(batch.neighbours.builds[1])
 
 
+@pytest.mark.parametrize("batched_cloth", [False, True])
+def test_batched_update_builds_the_lists_single_updates_build(batched_cloth):
+    """vmap of ``update_neighbours`` over 8 members, of which 0, 1, 2, 3, 5 or 8 moved
+    more than half the skin (each member tier of the batched rebuild, and the whole
+    batch): every member's list (pairs, count, positions, overflow, builds) equals its
+    own update's, bit for bit, with the cloth shared or batched."""
+    cl, x, h = _folded()
+    cfg = c.ClothConfig(thickness=h, self_stiffness=5.0)
+    B = 8
+    assert sc._member_tiers(B) == (1, 2, 4, 8)
+    keys = jax.random.split(jax.random.PRNGKey(4), 2)
+    x0 = x[None] + 0.05 * h * jax.random.normal(keys[0], (B,) + x.shape)
+    # half the vertices of a member that moves shift by 1.2 skin: 0.6 skin from the middle
+    shift = jnp.zeros(x.shape).at[: x.shape[0] // 2, 0].set(1.2 * sc.skin(cfg))
+    jitter = 1e-3 * h * jax.random.normal(keys[1], (B,) + x.shape)
+    single = jax.jit(sc.update_neighbours, static_argnums=0)
+    cloths = jax.tree.map(lambda a: jnp.stack([a] * B), cl)
+    batched = jax.jit(jax.vmap(sc.update_neighbours, in_axes=(
+        None, 0 if batched_cloth else None, 0, 0)), static_argnums=0)
+    old = jax.vmap(lambda y: sc.neighbour_list(cfg, cl, y))(x0)
+    for movers in ((), (6,), (1, 4), (0, 2, 7), (0, 1, 3, 5, 6), tuple(range(B))):
+        mask = jnp.zeros((B, 1, 1)).at[jnp.asarray(movers, jnp.int32)].set(1.0)
+        x1 = x0 + jitter + mask * shift
+        new = batched(cfg, cloths if batched_cloth else cl, old, x1)
+        for b in range(B):
+            one = single(cfg, cl, jax.tree.map(lambda a: a[b], old), x1[b])
+            for name in ("pairs", "count", "x_ref", "overflow", "builds"):
+                np.testing.assert_array_equal(getattr(new, name)[b], getattr(one, name),
+                                              err_msg=f"{name} of member {b}, {movers}")
+        np.testing.assert_array_equal(new.builds, 1 + mask[:, 0, 0].astype(jnp.int32))
+
+
 def test_force_gradient_with_the_list_held_matches_finite_differences():
     """float64: d (w . f) / d (x, v) of the listed pairs' forces, the list held constant,
     against central differences."""
