@@ -119,8 +119,9 @@ def test_stale_reason_tells_a_changed_spec_from_changed_code(grid, monkeypatch):
 
 def test_a_forward_equivalence_keeps_only_the_rows_of_methods_without_env_gradients(grid):
     """A ledger entry from a row's fingerprint to today's keeps a random or PPO row current
-    (neither differentiates the env), not an APG row of the same task; an entry for
-    another fingerprint, or a row whose spec changed, keeps nothing; entries chain."""
+    (neither differentiates the env), not an APG row of the same task unless the entries
+    cover the gradients; an entry for another fingerprint, or a row whose spec changed,
+    keeps nothing; entries chain."""
     from dax_algos.bench.equivalence import Equivalence, forward_equivalent
 
     _, rows = grid
@@ -140,6 +141,19 @@ def test_a_forward_equivalence_keeps_only_the_rows_of_methods_without_env_gradie
         assert "spec changed" in provenance.stale_reason(other_spec, today, ledger)
     apg = dict(by_method["ppo"], method="apg", task_fingerprint=old)
     assert "code changed" in provenance.stale_reason(apg, today, ledger)
+    # entries whose evidence covers the action gradients keep every method's rows; a chain
+    # through a forward-only entry keeps only the forward-only methods'
+    values = (Equivalence(TASK, old, "feedfacecafe", "test", gradients=True),
+              Equivalence(TASK, "feedfacecafe", now, "test", gradients=True))
+    assert forward_equivalent(old, now, values, gradients=True)
+    assert not forward_equivalent(old, now, ledger, gradients=True)
+    assert "code changed" not in provenance.stale_reason(apg, today, values)  # config: PPO's
+    assert provenance.stale_reason(dict(by_method["random"], task_fingerprint=old), today,
+                                   values) == ""
+    mixed = (values[0], ledger[1])
+    assert "code changed" in provenance.stale_reason(apg, today, mixed)
+    assert provenance.stale_reason(dict(by_method["ppo"], task_fingerprint=old), today,
+                                   mixed) == ""
 
 
 def test_rerun_stale_runs_again_only_the_runs_whose_rows_are_stale(grid, monkeypatch,

@@ -1,6 +1,6 @@
-"""Task fingerprints whose forward programs are the same (a ledger), so that a code change
-that leaves a task's forward computation as it was does not stale the rows of methods
-that never differentiate through the env.
+"""Task fingerprints whose programs compute the same numbers (a ledger), so that a code
+change that leaves a task's computation as it was does not stale the rows it cannot have
+changed.
 
 A row records its task's fingerprint (:mod:`dax_algos.bench.provenance`), which covers the
 dax-tasks and dax-physics programs the task can reach: any edit of them stales every row
@@ -8,15 +8,23 @@ of the task. A change may leave every forward program as it was and change only 
 computed in reverse (a written-out VJP): a row made by a method with ``uses_gradients``
 false (random, expert, CEM-MPC, PPO, Transporter) then still repeats to the bit, and a
 row of one that differentiates the env (APG, SHAC, ILD, diff-MPC, diff-CEM-MPC) does not.
+A change may also rewrite programs and leave every number they give as it was (the same
+integer neighbour lists built in fewer calls): then the rows of every method repeat.
 
 Each :class:`Equivalence` says that for ``task`` the code with fingerprint ``after``
-gives the same forward programs as the code with fingerprint ``before``, with the
-evidence: ``python -m benchmarks.forward_programs record`` run on both versions (the env's
-reset, expert action and step lowered to StableHLO text, without source locations, at
-each recorded batch, and the bytes of a few expert steps), and ``... compare`` finding
-every digest equal. Entries chain (``a`` to ``b`` and ``b`` to ``c`` make ``a`` to ``c``),
-but only for fingerprints with the same spec: the spec is part of the fingerprint, so a
-pair of fingerprints names one task with one set of overrides.
+computes what the code with fingerprint ``before`` did, with the evidence: ``python -m
+benchmarks.forward_programs record`` run on both versions, and ``... compare`` finding
+the digests equal. With ``gradients`` false (forward programs), the env's reset, expert
+action and step lowered to StableHLO text, without source locations, at each recorded
+batch, and the bytes of a few expert steps are equal; it keeps the rows of methods that
+never differentiate the env. With ``gradients`` true (values), the bytes of the expert
+steps and of their action gradients are equal at each recorded batch (``record --grad``,
+``compare --values``); it keeps the rows of every method, and the change must compute
+the same numbers for every input by construction (say how in the evidence), the bytes
+being the check. Entries chain (``a`` to ``b`` and ``b`` to ``c`` make ``a`` to ``c``;
+for a row of a method that differentiates the env, only through entries with
+``gradients``), but only for fingerprints with the same spec: the spec is part of the
+fingerprint, so a pair of fingerprints names one task with one set of overrides.
 """
 
 from __future__ import annotations
@@ -28,13 +36,15 @@ import functools
 @dataclasses.dataclass(frozen=True)
 class Equivalence:
     """``task``'s fingerprint ``before`` and ``after`` a code change that left its forward
-    programs as they were; ``evidence``: the two ``benchmarks.forward_programs`` files and
-    the commit that made the change."""
+    programs as they were, or with ``gradients`` the numbers of its steps and their action
+    gradients; ``evidence``: the two ``benchmarks.forward_programs`` files and the commit
+    that made the change."""
 
     task: str
     before: str
     after: str
     evidence: str
+    gradients: bool = False
 
 
 #: The forward-programs files of the self-collision force's written reverse pass.
@@ -62,9 +72,10 @@ LEDGER: tuple[Equivalence, ...] = (
 
 
 @functools.cache
-def _closure(ledger: tuple) -> frozenset:
-    """Every ``(before, after)`` pair the ledger's entries give, chained."""
-    pairs = {(e.before, e.after) for e in ledger}
+def _closure(ledger: tuple, gradients: bool) -> frozenset:
+    """Every ``(before, after)`` pair the ledger's entries give, chained (with
+    ``gradients``, only the entries that cover gradients)."""
+    pairs = {(e.before, e.after) for e in ledger if e.gradients or not gradients}
     while True:
         more = {(a, d) for a, b in pairs for c, d in pairs if b == c and a != d} - pairs
         if not more:
@@ -72,8 +83,10 @@ def _closure(ledger: tuple) -> frozenset:
         pairs |= more
 
 
-def forward_equivalent(before: str, after: str, ledger: tuple = LEDGER) -> bool:
+def forward_equivalent(before: str, after: str, ledger: tuple = LEDGER,
+                       gradients: bool = False) -> bool:
     """Whether the code of fingerprint ``after`` gives the forward programs of the code of
     fingerprint ``before`` (the same fingerprint, or a chain of ledger entries from
-    ``before`` to ``after``)."""
-    return before == after or (before, after) in _closure(tuple(ledger))
+    ``before`` to ``after``); with ``gradients``, also the same action gradients (a chain
+    of entries that cover them)."""
+    return before == after or (before, after) in _closure(tuple(ledger), gradients)

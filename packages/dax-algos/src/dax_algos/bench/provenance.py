@@ -25,8 +25,9 @@ stands in for a seed trained again only on a machine of its class.
 
 A row is **stale** when what it was measured on is no longer what the code builds: its
 fingerprint differs from the task's today (built with the run's task overrides; unless
-the row's method never differentiates through the env and the ledger of
-:mod:`dax_algos.bench.equivalence` says today's code gives the row's forward programs), or its
+the ledger of :mod:`dax_algos.bench.equivalence` says today's code gives the row's forward
+programs and the row's method never differentiates through the env, or says it gives the
+same numbers forward and in reverse), or its
 config digest differs from the config the same method name gives today (budget, task and
 method overrides as the run had them), or it has no provenance at all (a file written
 before rows carried it: "provenance unknown"). Stale rows stay in ``results.csv``; the
@@ -228,7 +229,7 @@ def _forward_only(method: str) -> bool:
 
 def stale_reason(row: Mapping, today: Today, ledger: tuple = LEDGER) -> str:
     """Why ``row`` no longer describes today's code (``""``: it does). See the module
-    docstring; ``ledger``: the forward equivalences honoured (:mod:`.equivalence`)."""
+    docstring; ``ledger``: the equivalences honoured (:mod:`.equivalence`)."""
     if not has_provenance(row):
         return UNKNOWN
     reasons = []
@@ -238,8 +239,8 @@ def stale_reason(row: Mapping, today: Today, ledger: tuple = LEDGER) -> str:
         if now is None:
             reasons.append(f"the task cannot be built today ({error})")
         elif now[0] != fp and not (
-                row.get("spec_digest") == now[1] and _forward_only(row.get("method", ""))
-                and forward_equivalent(fp, now[0], ledger)):
+                row.get("spec_digest") == now[1] and forward_equivalent(
+                    fp, now[0], ledger, gradients=not _forward_only(row.get("method", "")))):
             what = ("the task's spec changed" if row.get("spec_digest") != now[1] else
                     "the dax-tasks or dax-physics code changed")
             reasons.append(f"{what} (fingerprint {fp}, today {now[0]})")
