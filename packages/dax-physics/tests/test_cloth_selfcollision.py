@@ -242,7 +242,7 @@ def test_batched_update_builds_the_lists_single_updates_build(batched_cloth):
         x1 = x0 + jitter + mask * shift
         new = batched(cfg, cloths if batched_cloth else cl, old, x1)
         for b in range(B):
-            one = single(cfg, cl, jax.tree.map(lambda a: a[b], old), x1[b])
+            one = single(cfg, cl, jax.tree.map(lambda a, b=b: a[b], old), x1[b])
             for name in ("pairs", "count", "x_ref", "overflow", "builds"):
                 np.testing.assert_array_equal(getattr(new, name)[b], getattr(one, name),
                                               err_msg=f"{name} of member {b}, {movers}")
