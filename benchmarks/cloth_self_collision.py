@@ -194,6 +194,50 @@ def render_table(path) -> str:
     return "\n".join(out) + "\n"
 
 
+def render_before_after(path) -> str:
+    """The Markdown table of a before/after comparison (``python -m benchmarks.before_after
+    --cmd "python -m benchmarks.cloth_self_collision ..."``): JSON lines of this script's
+    records, each tagged with ``code`` ("before" or "after"), ``commit``, ``arm`` and the
+    1-minute load when its arm began. Per case (task, resolution, batch, program): the
+    step without and with self-collision of each code, the mean over its arms, the ratio
+    list ÷ off of each, and the factor before ÷ after of the step with self-collision."""
+    from benchmarks._report import file_date, read_result
+
+    path, recs = read_result(path)
+    cases: dict = {}
+    for r in recs:
+        if "task" in r:
+            key = (r["task"], r["resolution"], r.get("batch", 1), bool(r.get("grad")))
+            cases.setdefault(key, {}).setdefault(r["code"], []).append(r)
+
+    def mean(rs, field):
+        return sum(r[field] for r in rs) / len(rs)
+
+    out = ["| task | batch, program | off before / after [s] | with the list before / after [s] "
+           "| list ÷ off before → after | before ÷ after (with the list) |",
+           "|---|---|---|---|---|---|"]
+    for (task, res, batch, grad), by in cases.items():
+        if set(by) != {"before", "after"}:
+            continue
+        off = {c: mean(by[c], "step_off_s") for c in by}
+        lst = {c: mean(by[c], "step_list_s") for c in by}
+        name = task if res == "default" else f"{task}@{res}"
+        out.append(f"| {name} | {batch}, {'step + action gradient' if grad else 'step'} | "
+                   f"{off['before']:.3g} / {off['after']:.3g} | "
+                   f"{lst['before']:.3g} / {lst['after']:.3g} | "
+                   f"{lst['before'] / off['before']:.2f} → {lst['after'] / off['after']:.2f} | "
+                   f"{lst['before'] / lst['after']:.2f} |")
+    arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
+                   for r in recs})
+    order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
+    reps = sorted({r.get("reps") for r in recs if "task" in r})
+    out += ["", f"Medians of {'/'.join(map(str, reps))} interleaved rounds per arm (the list "
+            "and off variants alternate in one process), the mean over each code's arms; "
+            f"the expert's first action; arms in the order run: {order}. "
+            f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
+    return "\n".join(out) + "\n"
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=DEFAULT_CASES,

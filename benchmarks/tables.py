@@ -71,6 +71,11 @@ FILE_KINDS = {
     "self_collision": ("benchmarks.cloth_self_collision", "render_table",
                        "the cloth self-collision table of a benchmarks.cloth_self_collision "
                        "JSONL file", 1),
+    "self_collision_before_after": ("benchmarks.cloth_self_collision", "render_before_after",
+                                    "the cloth self-collision step before and after a code "
+                                    "change, arms interleaved (a benchmarks.before_after "
+                                    "JSONL file of benchmarks.cloth_self_collision records)",
+                                    1),
     "resolution": ("benchmarks.resolution", "render_table",
                    "one row per task of resolution studies (benchmarks.tasks resolution "
                    "JSON files)", "+"),

@@ -35,3 +35,23 @@ def test_targets_at_another_batch_name_it_and_the_table_says_it(tmp_path):
     table = sc.render_table(path)
     assert "batch 16, the expert's first action" in table
     assert "| unfold_cloth3: self-collision / off (batch 16) | 1.7 | 1.5 | no |" in table
+
+
+def test_before_after_table_averages_each_codes_arms(tmp_path):
+    """``render_before_after``: per case the mean over each code's arms (ABBA), the ratios
+    to off and the factor before ÷ after; summary lines and one-code cases are left out."""
+    arms = [("before", 0, 0.20, 0.60), ("after", 1, 0.20, 0.40), ("after", 2, 0.22, 0.44),
+            ("before", 3, 0.22, 0.64)]
+    lines = []
+    for code, arm, off, lst in arms:
+        tag = dict(code=code, arm=arm, commit=code[:3], load1_at_arm_start=1.0)
+        lines.append({**_record("fold_cloth1", "default", 64, off, lst), **tag})
+        lines.append({"targets": {}, **tag})
+    lines.append({**_record("unfold_cloth3", "default", 64, 0.2, 0.5), "code": "after",
+                  "arm": 1, "commit": "aft", "load1_at_arm_start": 1.0})
+    path = tmp_path / "2026-12-06-x.jsonl"
+    path.write_text("\n".join(json.dumps(r) for r in lines) + "\n")
+    table = sc.render_before_after(path)
+    assert "| fold_cloth1 | 64, step | 0.21 / 0.21 | 0.62 / 0.42 | 2.95 → 2.00 | 1.48 |" in table
+    assert "unfold_cloth3" not in table
+    assert "before (bef, load 1.0), after (aft, load 1.0), after" in table
