@@ -317,10 +317,19 @@ def _with_record(new: NeighbourList, old: NeighbourList, built) -> NeighbourList
                        builds=old.builds + built)
 
 
+#: Batches smaller than this build every member on a rebuild (:func:`_member_tiers`).
+_GATHER_FROM = 16
+
+
 def _member_tiers(batch: int) -> tuple:
     """Numbers of members a batched rebuild builds: the smallest of these holding all the
-    members that moved (halving from the batch down to a sixteenth of it, at least 1)."""
-    return tuple(sorted({max(1, batch // 2 ** k) for k in range(5)}))
+    members that moved. A quarter, a half and all of a batch of at least
+    :data:`_GATHER_FROM`; a smaller batch, all of it (each tier is one more build to
+    compile, twice in a checkpointed gradient, and a small batch's build costs little more
+    than one member's)."""
+    if batch < _GATHER_FROM:
+        return (batch,)
+    return (batch // 4, batch // 2, batch)
 
 
 def _rebuild_moved(cfg, moved, cloth, x, old: NeighbourList) -> NeighbourList:
@@ -330,11 +339,12 @@ def _rebuild_moved(cfg, moved, cloth, x, old: NeighbourList) -> NeighbourList:
     Under ``vmap`` only the members that moved are built: the smallest member tier
     (:func:`_member_tiers`) holding the n that moved is chosen (a ``lax.switch``), their
     positions are gathered into it, built, and their lists scattered back; the batch's own
-    size builds every member and keeps the lists of those that moved, as before. A batch
-    whose members rebuild at different substeps (64 members of Fold-Cloth-1 rebuild at
-    about 370 substeps of 700, 14 members at a time) no longer builds all of them each
-    time one must. Each member's list is the one its own build gives, as without
-    ``vmap``: the lists, and so the forces, are unchanged to the bit."""
+    size builds every member and keeps the lists of those that moved, as before (the only
+    tier of a small batch). A batch whose members rebuild at different substeps (64
+    members of Fold-Cloth-1 rebuild at about 370 substeps of 700, 14 members at a time) no
+    longer builds all of them each time one must. Each member's list is the one its own
+    build gives, as without ``vmap``: the lists, and so the forces, are unchanged to the
+    bit."""
     @custom_vmap
     def select(moved, cloth, x, old):
         new = _with_record(neighbour_list(cfg, cloth, x), old, 1)
@@ -347,14 +357,25 @@ def _rebuild_moved(cfg, moved, cloth, x, old: NeighbourList) -> NeighbourList:
         x = x if b_x else jnp.broadcast_to(x, (axis_size,) + x.shape)
         old = jax.tree.map(lambda a, b: a if b else jnp.broadcast_to(a, (axis_size,) + a.shape),
                            old, b_old)
+        cloth_axes = jax.tree.map(lambda b: 0 if b else None, b_cloth)
+        build = jax.vmap(functools.partial(neighbour_list, cfg), in_axes=(cloth_axes, 0))
+        sizes = _member_tiers(axis_size)
+        record = moved.astype(old.builds.dtype)
+
+        def everyone(order, cloth, x, old):
+            del order
+            new = build(cloth, x)
+            return jax.tree.map(lambda a, b: jnp.where(
+                moved.reshape(moved.shape + (1,) * (a.ndim - 1)), a, b), new, old)
+
+        out_batched = jax.tree.map(lambda _: True, old)
+        if len(sizes) == 1:
+            return _with_record(everyone(None, cloth, x, old), old, record), out_batched
         n = jnp.sum(moved, dtype=jnp.int32)
         # the members that moved first, in member order (a stable sort of the flags); past
         # the n that moved, an index no member has (its writes are dropped)
         order = jnp.argsort(~moved, stable=True).astype(jnp.int32)
         order = jnp.where(jnp.arange(axis_size) < n, order, axis_size)
-        cloth_axes = jax.tree.map(lambda b: 0 if b else None, b_cloth)
-        build = jax.vmap(functools.partial(neighbour_list, cfg), in_axes=(cloth_axes, 0))
-        sizes = _member_tiers(axis_size)
 
         def gathered(size):
             def run(order, cloth, x, old):
@@ -365,17 +386,10 @@ def _rebuild_moved(cfg, moved, cloth, x, old: NeighbourList) -> NeighbourList:
                 return jax.tree.map(lambda a, p: a.at[idx].set(p, mode="drop"), old, new)
             return run
 
-        def everyone(order, cloth, x, old):
-            del order
-            new = build(cloth, x)
-            return jax.tree.map(lambda a, b: jnp.where(
-                moved.reshape(moved.shape + (1,) * (a.ndim - 1)), a, b), new, old)
-
         tier = jnp.sum(n > jnp.asarray(sizes[:-1], jnp.int32), dtype=jnp.int32)
         lists = jax.lax.switch(tier, [gathered(k) for k in sizes[:-1]] + [everyone],
                                order, cloth, x, old)
-        return _with_record(lists, old, moved.astype(old.builds.dtype)), \
-            jax.tree.map(lambda _: True, old)
+        return _with_record(lists, old, record), out_batched
 
     return select(moved, cloth, x, old)
 
