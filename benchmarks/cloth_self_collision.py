@@ -206,7 +206,7 @@ def render_before_after(path) -> str:
     path, recs = read_result(path)
     cases: dict = {}
     for r in recs:
-        if "task" in r:
+        if "step_list_s" in r:  # the file may hold other benchmarks' records too
             key = (r["task"], r["resolution"], r.get("batch", 1), bool(r.get("grad")))
             cases.setdefault(key, {}).setdefault(r["code"], []).append(r)
 
@@ -230,7 +230,7 @@ def render_before_after(path) -> str:
     arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
                    for r in recs})
     order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
-    reps = sorted({r.get("reps") for r in recs if "task" in r})
+    reps = sorted({r.get("reps") for r in recs if "step_list_s" in r})
     out += ["", f"Medians of {'/'.join(map(str, reps))} interleaved rounds per arm (the list "
             "and off variants alternate in one process), the mean over each code's arms; "
             f"the expert's first action; arms in the order run: {order}. "

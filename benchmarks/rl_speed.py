@@ -154,7 +154,8 @@ def render_before_after(path) -> str:
     path, recs = read_result(path)
     pairs: dict = {}
     for r in recs:
-        pairs.setdefault((r["task"], r["method"]), {}).setdefault(r["code"], []).append(r)
+        if "update_s" in r:  # the file may hold other benchmarks' records too
+            pairs.setdefault((r["task"], r["method"]), {}).setdefault(r["code"], []).append(r)
     out = ["| task | method (one update) | before: time per update [s] | after [s] | "
            "before ÷ after | XLA scratch before → after [MiB] |",
            "|---|---|---|---|---|---|"]

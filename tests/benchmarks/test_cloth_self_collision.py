@@ -49,6 +49,8 @@ def test_before_after_table_averages_each_codes_arms(tmp_path):
         lines.append({"targets": {}, **tag})
     lines.append({**_record("unfold_cloth3", "default", 64, 0.2, 0.5), "code": "after",
                   "arm": 1, "commit": "aft", "load1_at_arm_start": 1.0})
+    lines.append({"task": "fold_cloth1", "method": "ppo", "update_s": 1.0, "code": "after",
+                  "arm": 1, "commit": "aft", "load1_at_arm_start": 1.0})  # rl_speed's
     path = tmp_path / "2026-12-06-x.jsonl"
     path.write_text("\n".join(json.dumps(r) for r in lines) + "\n")
     table = sc.render_before_after(path)

@@ -29,7 +29,10 @@ def test_before_after_table_averages_each_code_s_arms_and_divides(tmp_path):
             _record("fold_cloth1", "apg", "after", 2, 0.45, 11.2),
             _record("fold_cloth1", "apg", "after", 3, 0.47, 11.2),
             _record("fold_cloth1", "apg", "before", 4, 0.64, 32.5),
-            _record("fold_tshirt", "apg", "before", 1, 2.0, 40.0)]
+            _record("fold_tshirt", "apg", "before", 1, 2.0, 40.0),
+            # another benchmark's record in the same file (before_after runs several)
+            {"task": "fold_cloth1", "resolution": "default", "step_list_s": 0.5,
+             "code": "after", "arm": 2, "commit": "beef001", "load1_at_arm_start": 0.5}]
     path = tmp_path / "2026-12-05-before-after.jsonl"
     path.write_text("".join(json.dumps(r) + "\n" for r in recs))
     table = rl_speed.render_before_after(path)
