@@ -123,7 +123,7 @@ def render_table(path) -> str:
                    f"{r['steps_per_update']} | {_s(r['update_s'])} | "
                    f"{_s(r['env_steps_per_s'])} | {r.get('xla_temp_mb', '-')} | "
                    f"{_s(r['compile_s_1'])} |")
-    devices = sorted({r.get("device", "?") for r in recs})
+    devices = sorted({r.get("device", "?") for r in recs if "update_s" in r})
     rss = [r["peak_rss_mb"] for r in recs if r.get("peak_rss_mb")]
     out += ["", "Time per update = (t(3 updates) − t(1 update)) / 2 of the jitted `train`, "
             "each the median of the run's calls after compilation (initialisation, reset "
@@ -171,7 +171,7 @@ def render_before_after(path) -> str:
     arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
                    for r in recs})
     order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
-    devices = sorted({r.get("device", "?") for r in recs})
+    devices = sorted({r.get("device", "?") for r in recs if "update_s" in r})
     out += ["", "Time per update as in the table above, the mean over each code's arms "
             f"(range in brackets); arms in the order run: {order}. {', '.join(devices)}. "
             f"`{path.as_posix()}` ({file_date(path) or 'date not recorded'})."]
