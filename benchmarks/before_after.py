@@ -93,6 +93,14 @@ def tag(line: str, arm: int, code: str, commit: str, load: float) -> dict | None
     return rec
 
 
+def arm_order(records) -> str:
+    """The arms of tagged ``records`` (:func:`tag`) in the order run, as a table caption
+    says them: ``"before (COMMIT, load L), after (COMMIT, load L), ..."``."""
+    arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
+                   for r in records})
+    return ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
+
+
 def run_arms(repo: Path, commits: dict, commands: list, order, out: Path, workdir: Path,
              keep: bool = False, log=sys.stderr) -> int:
     """Run every command of ``commands`` (argument lists) once per arm of ``order`` (a

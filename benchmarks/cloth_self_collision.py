@@ -202,6 +202,7 @@ def render_before_after(path) -> str:
     step without and with self-collision of each code, the mean over its arms, the ratio
     list ÷ off of each, and the factor before ÷ after of the step with self-collision."""
     from benchmarks._report import file_date, read_result
+    from benchmarks.before_after import arm_order
 
     path, recs = read_result(path)
     cases: dict = {}
@@ -227,9 +228,7 @@ def render_before_after(path) -> str:
                    f"{lst['before']:.3g} / {lst['after']:.3g} | "
                    f"{lst['before'] / off['before']:.2f} → {lst['after'] / off['after']:.2f} | "
                    f"{lst['before'] / lst['after']:.2f} |")
-    arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
-                   for r in recs})
-    order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
+    order = arm_order(recs)
     reps = sorted({r.get("reps") for r in recs if "step_list_s" in r})
     out += ["", f"Medians of {'/'.join(map(str, reps))} interleaved rounds per arm (the list "
             "and off variants alternate in one process), the mean over each code's arms; "

@@ -50,6 +50,12 @@ def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
+def _digest(h, tree) -> None:
+    """Feed the bytes of every leaf of ``tree`` (arrays) to the hash ``h``."""
+    for leaf in jax.tree.leaves(tree):
+        h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+
+
 def _lowered(fn, *args) -> str:
     return _sha(jax.jit(fn).lower(*args).as_text(debug_info=False).encode())
 
@@ -77,11 +83,9 @@ def record_task(name: str, batches, steps: int, grad: bool = False) -> dict:
         for _ in range(steps):
             action = act(state, params)
             if grad:
-                for leaf in action_grad(action, state, params):
-                    hg.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+                _digest(hg, action_grad(action, state, params))
             out_t = step(state, action, params)
-            for leaf in jax.tree.leaves(out_t):
-                h.update(np.ascontiguousarray(np.asarray(leaf)).tobytes())
+            _digest(h, out_t)
             state = out_t[1]
         digests["values"] = h.hexdigest()[:16]
         if grad:

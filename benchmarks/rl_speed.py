@@ -123,7 +123,7 @@ def render_table(path) -> str:
                    f"{r['steps_per_update']} | {_s(r['update_s'])} | "
                    f"{_s(r['env_steps_per_s'])} | {r.get('xla_temp_mb', '-')} | "
                    f"{_s(r['compile_s_1'])} |")
-    devices = sorted({r.get("device", "?") for r in recs if "update_s" in r})
+    devices = sorted({r.get("device", "?") for r in recs})
     rss = [r["peak_rss_mb"] for r in recs if r.get("peak_rss_mb")]
     out += ["", "Time per update = (t(3 updates) − t(1 update)) / 2 of the jitted `train`, "
             "each the median of the run's calls after compilation (initialisation, reset "
@@ -150,6 +150,7 @@ def render_before_after(path) -> str:
     with the range, the factor before ÷ after, and XLA's scratch memory of the one-update
     program before → after."""
     from benchmarks._report import file_date, read_result
+    from benchmarks.before_after import arm_order
 
     path, recs = read_result(path)
     pairs: dict = {}
@@ -168,9 +169,7 @@ def render_before_after(path) -> str:
         out.append(f"| {task} | {method} ({update_label(by['after'][0])}) | "
                    f"{_mean_range(t['before'])} | {_mean_range(t['after'])} | "
                    f"{mean['before'] / mean['after']:.2f} | {mem} |")
-    arms = sorted({(r["arm"], r["code"], r["commit"], r.get("load1_at_arm_start"))
-                   for r in recs})
-    order = ", ".join(f"{code} ({commit}, load {load})" for _, code, commit, load in arms)
+    order = arm_order(recs)
     devices = sorted({r.get("device", "?") for r in recs if "update_s" in r})
     out += ["", "Time per update as in the table above, the mean over each code's arms "
             f"(range in brackets); arms in the order run: {order}. {', '.join(devices)}. "
