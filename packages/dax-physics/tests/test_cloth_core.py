@@ -221,12 +221,14 @@ def test_config_is_hashable_and_state_is_a_pytree():
     assert len(leaves) == 10, f"expected 10 array leaves in ClothState, got {len(leaves)}"
 
 
-@pytest.mark.parametrize("shape", ["square", "tshirt"])
+@pytest.mark.parametrize("shape", ["square", "tshirt", "tshirt-groups"])
 def test_stencil_spring_sum_equals_the_scatter_with_gradients(shape):
     """The stencil sum (make_cloth's spring layout) gives the forces of the per-spring
     scatter, and its reverse pass their gradients with respect to positions, velocities,
     stiffness, rest lengths and dashpots (float64: agreement to rounding). The T-shirt
-    mesh also has springs in no offset class (summed by the scatter)."""
+    mesh also has springs in no offset class (summed by the scatter); ``tshirt-groups``
+    lays it out with every class of at least 1 spring in groups of ``CLASS_GROUP``
+    (13 classes: two groups, each summed by loops of its own, as large meshes have)."""
     with jax.enable_x64(True):
         if shape == "square":
             cl = c.square_cloth(6, size=(0.1, 0.1), stretch=10.0, damping=0.01,
@@ -235,6 +237,12 @@ def test_stencil_spring_sum_equals_the_scatter_with_gradients(shape):
             cl = c.tshirt_cloth(0.05, stretch=10.0, damping=0.01, dtype=jnp.float64,
                                 outline=dict(width=0.2, length=0.25, sleeve=0.08,
                                              sleeve_width=0.08, neck=0.08, neck_depth=0.02))
+        if shape == "tshirt-groups":
+            offsets, table, residual = c.spring_layout(cl.pairs, cl.n_vertices, min_share=0.02,
+                                                       group_springs=1)
+            assert len(offsets) // 2 > c.CLASS_GROUP, "expected a second group of classes"
+            cl = cl.replace(offsets=offsets, stencil_edge=jnp.asarray(table, jnp.int32),
+                            residual=jnp.asarray(residual, jnp.int32))
         assert cl.offsets, "expected the mesh's springs sorted into offset classes"
         if shape == "tshirt":
             assert 0 < cl.residual.shape[0] < cl.pairs.shape[0], "expected a residual"

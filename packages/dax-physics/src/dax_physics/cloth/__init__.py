@@ -26,6 +26,7 @@ from .mesh import (
 )
 from .selfcollision import NeighbourList, neighbour_list, update_neighbours
 from .sim import (
+    CLASS_GROUP,
     SELF_SEARCHES,
     Cloth,
     ClothConfig,
@@ -49,11 +50,12 @@ from .sim import (
 )
 
 __all__ = [
-    "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "MeshError", "NeighbourList",
-    "PickPlace", "check_params", "check_state", "energy", "grasp", "load_mesh", "make_cloth",
-    "max_stable_dt", "mesh_cloth", "mesh_springs", "move_gripper", "nearest_vertex_point",
-    "neighbour_list", "pick_and_place", "polygon_mesh", "release", "rollout", "scale_moduli",
-    "self_collision_forces", "self_collision_overflow", "spring_forces", "spring_layout",
-    "square_cloth", "square_mesh", "step", "tshirt_cloth", "tshirt_mesh", "tshirt_outline",
+    "CLASS_GROUP", "SELF_SEARCHES", "Cloth", "ClothConfig", "ClothState", "MeshError",
+    "NeighbourList", "PickPlace", "check_params", "check_state", "energy", "grasp",
+    "load_mesh", "make_cloth", "max_stable_dt", "mesh_cloth", "mesh_springs",
+    "move_gripper", "nearest_vertex_point", "neighbour_list", "pick_and_place",
+    "polygon_mesh", "release", "rollout", "scale_moduli", "self_collision_forces",
+    "self_collision_overflow", "spring_forces", "spring_layout", "square_cloth",
+    "square_mesh", "step", "tshirt_cloth", "tshirt_mesh", "tshirt_outline",
     "update_neighbours", "validate_mesh", "with_neighbours",
 ]

@@ -233,13 +233,21 @@ def make_cloth(vertices, faces, density: float = 0.2, stretch: float = 100.0,
                  residual=jnp.asarray(residual, jnp.int32), offsets=offsets)
 
 
-def spring_layout(pairs, n_vertices: int, min_share: float = 0.125, max_classes: int = 8):
+#: Offset classes summed in one loop by :func:`spring_forces` (:func:`spring_layout`).
+CLASS_GROUP = 8
+
+
+def spring_layout(pairs, n_vertices: int, min_share: float = 0.125,
+                  group_springs: int = 1024):
     """Sort a spring network into index-offset classes for :func:`spring_forces` (NumPy).
 
     A class is an offset ``o > 0`` shared by at least ``min_share * n_vertices`` springs
     ``(i, i + o)`` (a second spring on the same pair of vertices goes to a second class of
-    the same offset; at most ``max_classes`` classes, the largest first: past 8 classes
-    XLA:CPU no longer reads the classes' neighbours in one loop). Each vertex sums
+    the same offset), the largest first, in groups of :data:`CLASS_GROUP`: the first group,
+    then each further group while it holds at least ``group_springs`` springs.
+    :func:`spring_forces` sums each group in a loop of its own (past 8 classes XLA:CPU no
+    longer reads the classes' neighbours in one loop); a further group costs a few
+    microseconds per substep even when small, so small meshes keep one. Each vertex sums
     the springs of a class from both ends, ``(i, i + o)`` and ``(i - o, i)``, with the
     vertex arrays shifted by ``+o`` and ``-o``: no gather of positions and no scatter of
     forces, like a stencil on a regular grid.
@@ -265,7 +273,13 @@ def spring_layout(pairs, n_vertices: int, min_share: float = 0.125, max_classes:
     key = key + layer
     cand, counts = np.unique(key[off > 0], return_counts=True)
     rank = np.argsort(-counts, kind="stable")
-    chosen = [int(cand[r]) for r in rank[:max_classes] if counts[r] >= max(min_share * V, 1)]
+    eligible = [r for r in rank if counts[r] >= max(min_share * V, 1)]
+    chosen = [int(cand[r]) for r in eligible[:CLASS_GROUP]]
+    for g in range(CLASS_GROUP, len(eligible), CLASS_GROUP):
+        group = eligible[g:g + CLASS_GROUP]
+        if sum(int(counts[r]) for r in group) < group_springs:
+            break
+        chosen += [int(cand[r]) for r in group]
     offsets, rows = [], []
     in_class = np.zeros(E, bool)
     for kc in chosen:
@@ -461,10 +475,22 @@ def _stencil_sum(offsets, table, pairs, k, L, c, xt, vt):
     ``f_i = sum_c s_c(i) d_c(i) - s_c(i - o_c) d_c(i - o_c)`` in the slot order,
     recomputing the differences (cheap): the slot ``-o_c`` of vertex i is the spring
     ``(i - o_c, i)``, whose factor is the same number, so the forces equal those of a
-    factor per slot bit for bit."""
+    factor per slot bit for bit. Classes are taken :data:`CLASS_GROUP` at a time, each group
+    summed by its own two loops (:func:`_class_group_sum`) and the groups' sums added."""
     plus = offsets[0::2]
     if tuple(offsets[1::2]) != tuple(-o for o in plus) or min(plus) <= 0:
         raise ValueError(f"stencil offsets must be (+o, -o) pairs with o > 0, got {offsets}")
+    f = None
+    for g in range(0, len(plus), CLASS_GROUP):
+        part = _class_group_sum(plus[g:g + CLASS_GROUP], table[2 * g:2 * (g + CLASS_GROUP)],
+                                k, L, c, xt, vt)
+        f = part if f is None else f + part
+    return f
+
+
+def _class_group_sum(plus, table, k, L, c, xt, vt):
+    """The forces (3, V) of one group of classes (offsets ``plus``, their (2 C, V) slot
+    rows ``table``) for :func:`_stencil_sum`."""
     V = xt.shape[1]
     w = max(plus)
     n = V + w
