@@ -221,6 +221,28 @@ def test_config_is_hashable_and_state_is_a_pytree():
     assert len(leaves) == 10, f"expected 10 array leaves in ClothState, got {len(leaves)}"
 
 
+def test_spring_layout_adds_a_class_group_only_when_it_holds_enough_springs():
+    """Past the first CLASS_GROUP offset classes, a further group is laid out only when it
+    takes at least ``group_springs`` springs off the scatter: the small T-shirt keeps one
+    group by default, gets a second when the floor is lowered, and every spring is in
+    exactly one class or the residual either way."""
+    cl = c.tshirt_cloth(0.05, stretch=10.0, damping=0.01,
+                        outline=dict(width=0.2, length=0.25, sleeve=0.08, sleeve_width=0.08,
+                                     neck=0.08, neck_depth=0.02))
+    pairs, V = np.asarray(cl.pairs), cl.n_vertices
+    one = c.spring_layout(pairs, V)
+    two = c.spring_layout(pairs, V, group_springs=1)
+    assert len(one[0]) // 2 == c.CLASS_GROUP, "expected one full group by default"
+    assert len(two[0]) // 2 > c.CLASS_GROUP, "expected a second group below the floor"
+    floor = len(one[2]) - len(two[2])  # springs the second group takes off the scatter
+    assert len(c.spring_layout(pairs, V, group_springs=floor)[0]) == len(two[0])
+    assert len(c.spring_layout(pairs, V, group_springs=floor + 1)[0]) == len(one[0])
+    for _, table, residual in (one, two):
+        in_slots = table[0::2][table[0::2] < len(pairs)]
+        assert np.array_equal(np.sort(np.concatenate([in_slots, residual])),
+                              np.arange(len(pairs))), "each spring once, in a class or not"
+
+
 @pytest.mark.parametrize("shape", ["square", "tshirt", "tshirt-groups"])
 def test_stencil_spring_sum_equals_the_scatter_with_gradients(shape):
     """The stencil sum (make_cloth's spring layout) gives the forces of the per-spring
