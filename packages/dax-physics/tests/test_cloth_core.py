@@ -221,14 +221,20 @@ def test_config_is_hashable_and_state_is_a_pytree():
     assert len(leaves) == 10, f"expected 10 array leaves in ClothState, got {len(leaves)}"
 
 
+def _small_tshirt(**kwargs):
+    """The 42-vertex T-shirt (spacing 5 cm) of the spring-layout tests: its row-by-row
+    numbering leaves springs outside the offset classes."""
+    return c.tshirt_cloth(0.05, stretch=10.0, damping=0.01, **kwargs,
+                          outline=dict(width=0.2, length=0.25, sleeve=0.08, sleeve_width=0.08,
+                                       neck=0.08, neck_depth=0.02))
+
+
 def test_spring_layout_adds_a_class_group_only_when_it_holds_enough_springs():
     """Past the first CLASS_GROUP offset classes, a further group is laid out only when it
     takes at least ``group_springs`` springs off the scatter: the small T-shirt keeps one
     group by default, gets a second when the floor is lowered, and every spring is in
     exactly one class or the residual either way."""
-    cl = c.tshirt_cloth(0.05, stretch=10.0, damping=0.01,
-                        outline=dict(width=0.2, length=0.25, sleeve=0.08, sleeve_width=0.08,
-                                     neck=0.08, neck_depth=0.02))
+    cl = _small_tshirt()
     pairs, V = np.asarray(cl.pairs), cl.n_vertices
     one = c.spring_layout(pairs, V)
     two = c.spring_layout(pairs, V, group_springs=1)
@@ -256,9 +262,7 @@ def test_stencil_spring_sum_equals_the_scatter_with_gradients(shape):
             cl = c.square_cloth(6, size=(0.1, 0.1), stretch=10.0, damping=0.01,
                                 dtype=jnp.float64)
         else:
-            cl = c.tshirt_cloth(0.05, stretch=10.0, damping=0.01, dtype=jnp.float64,
-                                outline=dict(width=0.2, length=0.25, sleeve=0.08,
-                                             sleeve_width=0.08, neck=0.08, neck_depth=0.02))
+            cl = _small_tshirt(dtype=jnp.float64)
         if shape == "tshirt-groups":
             offsets, table, residual = c.spring_layout(cl.pairs, cl.n_vertices, min_share=0.02,
                                                        group_springs=1)
